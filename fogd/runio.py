@@ -1,0 +1,204 @@
+"""Reading and writing run CSVs (`t_s,rate_dph,temp_c[,...]`), with errors that name the file and line.
+
+A run is read with numpy's C reader; only when that fails is the file scanned again in Python to name the
+first bad line. Rows with NaN or Inf values are kept (callers flag or skip them) and counted.
+"""
+
+from __future__ import annotations
+
+import difflib
+import hashlib
+import io
+import math
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Iterator
+
+import numpy as np
+
+from fogd.errors import InputError, describe_os_error
+
+RUN_COLUMNS = ("t_s", "rate_dph", "temp_c")
+MAX_GAP_PERIODS = 5.0  # a time step longer than this many sample periods is a gap, not jitter
+
+
+@dataclass
+class Run:
+    """One recorded run: required columns as float64 arrays, extra numeric columns by name."""
+
+    path: str
+    t_s: np.ndarray
+    rate_dph: np.ndarray
+    temp_c: np.ndarray
+    rate_hz: float
+    sha256: str
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @property
+    def name(self) -> str:
+        return Path(self.path).name
+
+    @property
+    def rows(self) -> int:
+        return int(self.t_s.size)
+
+    @property
+    def nan_rows(self) -> int:
+        """Rows whose rate or temperature is NaN or Inf."""
+        return int(np.count_nonzero(~(np.isfinite(self.rate_dph) & np.isfinite(self.temp_c))))
+
+
+def read_run(path: str | Path, *, max_gap_periods: float = MAX_GAP_PERIODS) -> Run:
+    """Read and check a run CSV; raises InputError naming the file (and line) for anything unusable."""
+    path = str(path)
+    try:
+        data = Path(path).read_bytes()
+    except OSError as error:
+        raise InputError(describe_os_error(error)) from None
+    if not data.strip():
+        raise InputError(f"{path}: empty file (expected a header line {','.join(RUN_COLUMNS)} and data rows)")
+    header_line, names = _header(path, data)
+    missing = [name for name in RUN_COLUMNS if name not in names]
+    if missing:
+        hints = []
+        for name in missing:
+            close = difflib.get_close_matches(name, names, n=1)
+            hints.append(f"{name} (did you mean {close[0]!r}?)" if close else name)
+        raise InputError(
+            f"{path}:{header_line}: missing column(s) {', '.join(hints)}; the header has "
+            f"{','.join(names) or 'nothing'}; a run needs {','.join(RUN_COLUMNS)}"
+        )
+    text = data.decode("utf-8", errors="replace")
+    try:
+        table = np.loadtxt(
+            io.StringIO(text), delimiter=",", skiprows=header_line, ndmin=2, comments=None, dtype=np.float64
+        )
+    except ValueError:
+        raise InputError(_first_bad_line(path, text, header_line, len(names))) from None
+    if table.shape[0] == 0:
+        raise InputError(f"{path}: no data rows after the header")
+    columns = {name: np.ascontiguousarray(table[:, index]) for index, name in enumerate(names)}
+    t_s = columns.pop("t_s")
+    rate_hz = _check_time(path, t_s, header_line, max_gap_periods)
+    return Run(
+        path=path,
+        t_s=t_s,
+        rate_dph=columns.pop("rate_dph"),
+        temp_c=columns.pop("temp_c"),
+        rate_hz=rate_hz,
+        sha256=hashlib.sha256(data).hexdigest(),
+        extra=columns,
+    )
+
+
+def _header(path: str, data: bytes) -> tuple[int, list[str]]:
+    """(1-based line number of the header, its column names); '#' lines before it are comments."""
+    for number, raw in enumerate(data.splitlines(), start=1):
+        line = raw.decode("utf-8", errors="replace").strip()
+        if not line or line.startswith("#"):
+            continue
+        names = [name.strip() for name in line.split(",")]
+        if any(_is_number(name) for name in names):
+            raise InputError(
+                f"{path}:{number}: expected a header line ({','.join(RUN_COLUMNS)}), found data: {line[:60]!r}"
+            )
+        duplicates = sorted({name for name in names if names.count(name) > 1})
+        if duplicates:
+            raise InputError(f"{path}:{number}: column(s) {', '.join(duplicates)} appear more than once")
+        return number, names
+    raise InputError(f"{path}: no header line (expected {','.join(RUN_COLUMNS)})")
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _first_bad_line(path: str, text: str, header_line: int, width: int) -> str:
+    """The message for the first data line numpy could not read (only run on the error path)."""
+    for number, line in enumerate(text.splitlines(), start=1):
+        if number <= header_line or not line.strip():
+            continue
+        cells = line.split(",")
+        if len(cells) != width:
+            return f"{path}:{number}: {len(cells)} cells where the header has {width}: {line[:60]!r}"
+        for column, cell in enumerate(cells, start=1):
+            if not _is_number(cell):
+                return f"{path}:{number}: column {column} is not a number: {cell.strip()[:40]!r}"
+    return f"{path}: unreadable data after line {header_line}"
+
+
+def _check_time(path: str, t_s: np.ndarray, header_line: int, max_gap_periods: float) -> float:
+    """Checks that time increases with no gaps; returns the data rate in Hz."""
+    finite = np.flatnonzero(np.isfinite(t_s))
+    if finite.size < 2:
+        raise InputError(f"{path}: fewer than two rows with a finite time; cannot tell the data rate")
+    step = np.diff(t_s[finite])
+    bad = np.flatnonzero(step <= 0)
+    if bad.size:
+        row = finite[bad[0] + 1]
+        raise InputError(
+            f"{path}:{_line_of(row, header_line)}: time does not increase "
+            f"({t_s[finite[bad[0]]]:.6g} s then {t_s[row]:.6g} s)"
+        )
+    period_s = float(np.median(step))
+    gaps = np.flatnonzero(step > max_gap_periods * period_s)
+    if gaps.size:
+        row = finite[gaps[0] + 1]
+        raise InputError(
+            f"{path}:{_line_of(row, header_line)}: gap of {step[gaps[0]]:.6g} s in time "
+            f"(sample period {period_s:.6g} s); split the run into separate files at the gap"
+        )
+    return 1.0 / period_s
+
+
+def _line_of(row: int, header_line: int) -> int:
+    """File line of data row `row` (0-based), assuming no blank lines inside the data."""
+    return header_line + 1 + int(row)
+
+
+def open_output(path: str) -> IO[str]:
+    """A text stream for `path`, or stdout for '-'; raises InputError if it cannot be created."""
+    if path == "-":
+        return sys.stdout
+    try:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        return open(path, "w", newline="\n", encoding="utf-8")
+    except OSError as error:
+        raise InputError(f"cannot write {describe_os_error(error)}") from None
+
+
+def write_csv(path: str, columns: dict[str, np.ndarray], formats: dict[str, str], *, comments: list[str] = ()) -> None:
+    """Write equal-length columns as CSV (header from the dict's keys), in chunks to bound memory."""
+    names = list(columns)
+    length = len(next(iter(columns.values())))
+    fmt = ",".join(formats.get(name, "%.9g") for name in names)
+    stream = open_output(path)
+    try:
+        for line in comments:
+            stream.write(f"# {line}\n")
+        stream.write(",".join(names) + "\n")
+        for start, stop in _chunks(length, 200_000):
+            block = np.column_stack([np.asarray(columns[name][start:stop], dtype=np.float64) for name in names])
+            np.savetxt(stream, block, fmt=fmt, delimiter=",")
+    except OSError as error:
+        raise InputError(f"cannot write {path}: {describe_os_error(error)}") from None
+    finally:
+        if stream is not sys.stdout:
+            stream.close()
+        else:
+            stream.flush()
+
+
+def _chunks(length: int, size: int) -> Iterator[tuple[int, int]]:
+    for start in range(0, length, size):
+        yield start, min(start + size, length)
+
+
+def finite_or_none(value: float) -> float | None:
+    """A float for JSON: None for NaN/Inf."""
+    return value if math.isfinite(value) else None
