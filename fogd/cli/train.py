@@ -1,0 +1,143 @@
+"""`fogd-train`: fit a temperature-error model from thermal-chamber runs and write the model file."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Sequence
+
+from fogd import modelfile
+from fogd.cli.common import ArgumentParser, non_negative_float, positive_float, positive_int, run
+from fogd.errors import UsageError
+from fogd.estimator import EstimatorSettings
+from fogd.inputs import default_inputs
+from fogd.models import FITNESSES, METHODS, FitOptions
+from fogd.replay import replay, replay_table
+from fogd.runio import read_run
+from fogd.tables import error_table
+from fogd.training import TrainConfig, Trained, prepare, train
+
+PROG = "fogd-train"
+
+
+def parser() -> ArgumentParser:
+    p = ArgumentParser(
+        prog=PROG,
+        description="Fit a FOG temperature-error model f(T, dT/dt) from thermal-chamber runs "
+        "(CSV t_s,rate_dph,temp_c) and write it as a JSON model file for fogd and fogd-replay.",
+        epilog="Example: fogd-train cal_heat.csv cal_cool.csv -o model.json --report report/",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    p.add_argument("runs", nargs="+", metavar="RUN.csv", help="calibration runs; blocks never straddle two runs")
+    p.add_argument("-o", "--output", metavar="MODEL.json", help="model file to write (required unless --compare)")
+    p.add_argument("--method", choices=METHODS, default="pso-svr", help="model family")
+    p.add_argument(
+        "--fitness", choices=FITNESSES, default="cv",
+        help="PSO fitness: cv = RMSE on held-out folds (leave-one-run-out, or blocked in time for one run); "
+        "train = the paper's RMSE on the training data",
+    )  # fmt: skip
+    p.add_argument("--particles", type=positive_int, default=60, help="PSO population (paper: 60)")
+    p.add_argument("--iterations", type=positive_int, default=100, help="PSO iterations (paper: 100)")
+    p.add_argument("--c1", type=non_negative_float, default=2.0, help="PSO cognitive learning factor")
+    p.add_argument("--c2", type=non_negative_float, default=2.0, help="PSO social learning factor")
+    p.add_argument("--folds", type=positive_int, default=5, help="blocked time folds for cv with a single run")
+    p.add_argument("--jobs", type=int, default=1, help="joblib workers evaluating particles (-1: all cores)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (PSO, k-means)")
+    p.add_argument("--degree", type=positive_int, default=5, help="ls-poly order (paper: 5)")
+    p.add_argument("--window-s", type=positive_float, default=50.0, help="eq. 16 window N, in seconds")
+    p.add_argument("--average-s", type=positive_float, default=0.5, help="eq. 16 averaging window m, in seconds")
+    p.add_argument("--step-s", type=non_negative_float, default=0.0, help="eq. 16 step l, in seconds (0: every sample)")
+    p.add_argument("--block-s", type=positive_float, default=100.0, help="block length for targets, in seconds")
+    p.add_argument(
+        "--reference", default="mean",
+        help="rate subtracted to get the error: 'mean' of the training blocks, or a value in deg/h",
+    )  # fmt: skip
+    p.add_argument("--name", help="model name recorded in the file and in the daemon's status")
+    p.add_argument("--compare", action="store_true", help="fit every method and print the paper's table 3")
+    p.add_argument("--holdout", nargs="+", default=[], metavar="RUN.csv", help="runs not used for training: table 4 each")
+    p.add_argument("--report", metavar="DIR", help="write figures (PNG) and a markdown summary to DIR")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    return p
+
+
+def _reference(text: str) -> str | float:
+    if text == "mean":
+        return "mean"
+    try:
+        return float(text)
+    except ValueError:
+        raise UsageError(f"--reference must be 'mean' or a rate in deg/h, not {text!r}") from None
+
+
+def body(argv: Sequence[str] | None) -> int:
+    args = parser().parse_args(argv)
+    if not args.output and not args.compare:
+        raise UsageError(f"give -o MODEL.json (or --compare to only compare methods) (see {PROG} --help)")
+    try:
+        estimator = EstimatorSettings(args.window_s, args.average_s, args.step_s)
+        runs = [read_run(path) for path in args.runs]
+        for loaded in runs:
+            estimator.samples(loaded.rate_hz)
+    except ValueError as error:
+        raise UsageError(str(error)) from None
+    holdouts = [read_run(path) for path in args.holdout]
+    config = TrainConfig(
+        method=args.method,
+        inputs=default_inputs(estimator),
+        block_s=args.block_s,
+        reference=_reference(args.reference),
+        fit=FitOptions(
+            degree=args.degree, particles=args.particles, iterations=args.iterations, c1=args.c1, c2=args.c2,
+            fitness=args.fitness, folds=args.folds, n_jobs=args.jobs, seed=args.seed, progress=not args.quiet,
+        ),  # fmt: skip
+        name=args.name,
+    )
+    prepared = prepare(runs, config)
+    methods = list(METHODS) if args.compare else [args.method]
+    trained: dict[str, Trained] = {}
+    for method in methods:
+        config.method = method
+        trained[method] = train(runs, config, prepared)
+    chosen = trained[args.method]
+    for line in _summary(chosen):
+        print(line, file=sys.stderr)
+    print(f"\nTable 3: fit on the training runs ({len(chosen.error_dph)} blocks of {args.block_s:g} s)")
+    rows = [("Before compensation", chosen.before)] + [(m, t.after) for m, t in trained.items()]
+    print(error_table(rows))
+    for holdout in holdouts:
+        print(f"\nTable 4: {holdout.name}, not used for training (block means about the run mean)")
+        print(error_table(_holdout_rows(trained, holdout, args.block_s)))
+    if args.output:
+        modelfile.save(args.output, chosen.document)
+        print(f"\nwrote {args.output} ({args.method}, {chosen.model.name})", file=sys.stderr)
+    if args.report:
+        from fogd.report import write_report  # matplotlib only when a report is asked for
+
+        path = write_report(args.report, trained, args.method, holdouts, args.block_s)
+        print(f"wrote report {path}", file=sys.stderr)
+    return 0
+
+
+def _summary(trained: Trained) -> list[str]:
+    hyper = trained.fitted.hyperparameters
+    lines = [f"{trained.fitted.method}: " + ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in hyper.items())]
+    if trained.fitted.cv_rmse_dph is not None:
+        lines.append(f"held-out (cv) RMSE: {trained.fitted.cv_rmse_dph:.3e} deg/h")
+    return lines
+
+
+def _holdout_rows(trained: dict[str, Trained], holdout, block_s: float) -> list:
+    tables = {method: replay_table(holdout, replay(t.model, holdout), block_s) for method, t in trained.items()}
+    first = next(iter(tables.values()))
+    rows = [("Before compensation", first.before)] + [(method, table.after) for method, table in tables.items()]
+    if first.best is not None:
+        rows.append(("Best possible (true error removed)", first.best))
+    return rows
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    return run(PROG, body, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,121 @@
+"""The streaming compensator: the one code path the daemon and `fogd-replay` both run (paper section 3.2).
+
+Feed it gyro rates and the temperature held for each rate sample, in chunks of any size (one frame in the
+daemon, a million rows in replay): it estimates the temperature rate (eq. 16), evaluates the frozen model
+and returns the compensation, the compensated rate and per-sample flags. The result does not depend on how
+the samples were chunked.
+
+Policies (documented in the README):
+- Warm-up: until the estimator window is full the temperature rate is taken as 0 C/s; the model is still
+  evaluated at the current temperature and the sample is flagged WARMUP.
+- Invalid temperature (NaN, Inf, outside `TEMP_VALID_C`): the last valid temperature is held and the sample
+  flagged TEMP_INVALID; before the first valid temperature nothing is fed to the estimator and the
+  compensation is 0.
+- Invalid rate (NaN, Inf, or the caller's `rate_valid` false): flagged RATE_INVALID; the estimator still
+  advances, the compensated rate is the input passed through unchanged.
+- Calibrated domain: inputs are clamped to the training range and the sample flagged CLAMPED.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fogd.flags import Flag
+from fogd.frozen import FrozenModel
+from fogd.inputs import InputBank
+
+TEMP_VALID_C = (-100.0, 200.0)  # a reading outside this is a broken sensor or a corrupt frame
+
+
+@dataclass
+class Compensated:
+    """One chunk of compensated samples (all arrays the length of the input chunk)."""
+
+    temp_c: np.ndarray  # the temperature used (held where the input was invalid)
+    temp_rate_cps: np.ndarray
+    comp_dph: np.ndarray
+    rate_comp_dph: np.ndarray
+    flags: np.ndarray  # uint16, fogd.flags.Flag bits
+
+
+def temperature_valid(temp_c: np.ndarray) -> np.ndarray:
+    """True where a temperature reading can be used."""
+    low, high = TEMP_VALID_C
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(temp_c) & (temp_c >= low) & (temp_c <= high)
+
+
+def hold_temperature(temp_c: np.ndarray, valid: np.ndarray, previous_c: float = np.nan) -> np.ndarray:
+    """Each sample's temperature with the last valid one carried over invalid samples (`previous_c` before
+    the first valid one: NaN if none is known yet)."""
+    source = np.where(valid, np.arange(temp_c.size), -1)
+    np.maximum.accumulate(source, out=source)
+    return np.where(source >= 0, temp_c[np.maximum(source, 0)], previous_c)
+
+
+class Compensator:
+    """Stateful, chunk-size independent compensation of one gyro axis with one frozen model."""
+
+    def __init__(self, model: FrozenModel, rate_hz: float) -> None:
+        self.model = model
+        self.rate_hz = float(rate_hz)
+        self.bank = InputBank(model.inputs, rate_hz)
+        self._held_temp_c = np.nan
+        # the temperature rate reported with each sample: the first eq. 16 input, if the model has one
+        self._rate_column = next((i for i, spec in enumerate(model.inputs) if spec.estimator is not None), None)
+
+    def reset(self) -> None:
+        """Forget the temperature history (e.g. after a gap longer than the caller bridges)."""
+        self.bank.reset()
+        self._held_temp_c = np.nan
+
+    def process(
+        self,
+        rate_dph: np.ndarray,
+        temp_c: np.ndarray,
+        *,
+        rate_valid: np.ndarray | None = None,
+        temp_stale: np.ndarray | None = None,
+    ) -> Compensated:
+        """Compensate the next samples; `temp_c` is the temperature held for each rate sample."""
+        rate_dph = np.atleast_1d(np.asarray(rate_dph, dtype=np.float64))
+        temp_in = np.atleast_1d(np.asarray(temp_c, dtype=np.float64))
+        n = rate_dph.size
+        flags = np.zeros(n, dtype=np.uint16)
+
+        temp_ok = temperature_valid(temp_in)
+        flags[~temp_ok] |= Flag.TEMP_INVALID
+        temp_used = self._hold(temp_in, temp_ok)
+        known = np.isfinite(temp_used)  # False only before the first valid temperature ever
+
+        temp_rate_cps = np.zeros(n)
+        comp_dph = np.zeros(n)
+        if known.any():
+            first = int(np.argmax(known))  # once known, a temperature stays known
+            warm_before = self.bank.count
+            x = self.bank.update(temp_used[first:])
+            warmup = np.arange(warm_before, warm_before + x.shape[0]) < self.bank.warmup
+            flags[first:][warmup] |= Flag.WARMUP
+            comp, clamped = self.model.predict(x)
+            flags[first:][clamped] |= Flag.CLAMPED
+            comp_dph[first:] = comp
+            if self._rate_column is not None:
+                temp_rate_cps[first:] = x[:, self._rate_column]
+        flags[~known] |= Flag.WARMUP
+
+        rate_ok = np.isfinite(rate_dph)
+        if rate_valid is not None:
+            rate_ok &= np.asarray(rate_valid, dtype=bool)
+        flags[~rate_ok] |= Flag.RATE_INVALID
+        if temp_stale is not None:
+            flags[np.asarray(temp_stale, dtype=bool)] |= Flag.TEMP_STALE
+        rate_comp_dph = np.where(rate_ok, rate_dph - comp_dph, rate_dph)
+        return Compensated(temp_used, temp_rate_cps, comp_dph, rate_comp_dph, flags)
+
+    def _hold(self, temp_c: np.ndarray, valid: np.ndarray) -> np.ndarray:
+        held = hold_temperature(temp_c, valid, self._held_temp_c)
+        if held.size:
+            self._held_temp_c = float(held[-1])
+        return held

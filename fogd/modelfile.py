@@ -1,0 +1,272 @@
+"""The model file: plain JSON written by training, validated field by field before anything is evaluated.
+
+A model file is data from outside. Loading reads at most `MAX_MODEL_BYTES`, refuses pickles and other binary
+files by their first bytes, parses strict JSON (no NaN; deep nesting refused), accepts exactly the keys below and
+checks every array's shape and finiteness; anything else is a `ModelFileError` with a one-line message.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fogd import __version__
+from fogd.errors import ModelFileError, describe_os_error
+from fogd.estimator import EstimatorSettings
+from fogd.frozen import FrozenModel, build_evaluator
+from fogd.inputs import KINDS, TEMP_RATE, InputSpec
+
+MODEL_FORMAT = "fogd-model"
+MODEL_VERSION = 1
+MAX_MODEL_BYTES = 32 * 1024 * 1024
+MAX_ROWS = 100_000  # support vectors, centres or polynomial terms
+METHODS = ("linear", "ls-poly", "rbf-nn", "pso-svr")
+TOP_KEYS = {
+    "format", "version", "name", "method", "inputs", "input_scaling", "output_scaling", "domain", "params",
+    "reference_dph", "training", "metrics", "created_utc", "fogd_version",
+}  # fmt: skip
+PARAM_KEYS = {
+    "linear": {"coef", "intercept"},
+    "ls-poly": {"powers", "coef", "intercept"},
+    "rbf-nn": {"centres", "width", "coef", "intercept"},
+    "pso-svr": {"support_vectors", "dual_coef", "gamma", "intercept"},
+}
+_BINARY_MAGIC = {
+    b"\x80": "a Python pickle",
+    b"PK": "a zip archive (numpy .npz or joblib?)",
+    b"\x93NUMPY": "a numpy .npy array",
+    b"\x1f\x8b": "a gzip file",
+}
+
+
+def save(path: str | Path, document: dict[str, Any]) -> None:
+    """Write a model document (as built by `document()`), checking it loads back first."""
+    from_document(document, source=str(path))
+    text = json.dumps(document, indent=1, allow_nan=False)
+    try:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        Path(path).write_text(text + "\n", encoding="utf-8")
+    except OSError as error:
+        raise ModelFileError(f"cannot write model: {describe_os_error(error)}") from None
+
+
+def document(
+    *,
+    name: str,
+    method: str,
+    inputs: tuple[InputSpec, ...],
+    x_mean: np.ndarray,
+    x_scale: np.ndarray,
+    y_mean: float,
+    y_scale: float,
+    domain_min: np.ndarray,
+    domain_max: np.ndarray,
+    params: dict[str, Any],
+    reference_dph: float,
+    training: dict[str, Any],
+    metrics: dict[str, Any],
+    created_utc: str,
+) -> dict[str, Any]:
+    """A model document in the file's layout, ready for `save`."""
+    return {
+        "format": MODEL_FORMAT,
+        "version": MODEL_VERSION,
+        "name": name,
+        "method": method,
+        "inputs": [spec.to_dict() for spec in inputs],
+        "input_scaling": {"mean": _floats(x_mean), "scale": _floats(x_scale)},
+        "output_scaling": {"mean": float(y_mean), "scale": float(y_scale)},
+        "domain": {"min": _floats(domain_min), "max": _floats(domain_max)},
+        "params": params,
+        "reference_dph": float(reference_dph),
+        "training": training,
+        "metrics": metrics,
+        "created_utc": created_utc,
+        "fogd_version": __version__,
+    }
+
+
+def load(path: str | Path) -> FrozenModel:
+    """Read and validate a model file; raises ModelFileError with one line saying what is wrong."""
+    source = str(path)
+    try:
+        with open(path, "rb") as stream:
+            data = stream.read(MAX_MODEL_BYTES + 1)
+    except OSError as error:
+        raise ModelFileError(f"cannot read model: {describe_os_error(error)}") from None
+    if len(data) > MAX_MODEL_BYTES:
+        raise ModelFileError(f"{source}: larger than {MAX_MODEL_BYTES // 2**20} MiB; not a fogd model file")
+    for magic, what in _BINARY_MAGIC.items():
+        if data.startswith(magic):
+            raise ModelFileError(f"{source}: this is {what}, not a fogd JSON model; fogd never loads pickles")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise ModelFileError(f"{source}: not UTF-8 text; a fogd model file is JSON") from None
+    try:
+        parsed = json.loads(text, parse_constant=_reject_constant)
+    except RecursionError:
+        raise ModelFileError(f"{source}: JSON nested too deeply; not a fogd model file") from None
+    except ValueError as error:
+        raise ModelFileError(f"{source}: not valid JSON ({error})") from None
+    return from_document(parsed, source=source)
+
+
+def _reject_constant(name: str) -> None:
+    raise ValueError(f"{name} is not allowed")
+
+
+def from_document(doc: Any, *, source: str = "model") -> FrozenModel:
+    """Validate a parsed model document and build the frozen model it describes."""
+    check = _Checker(source)
+    check.mapping(doc, "", TOP_KEYS)
+    if doc["format"] != MODEL_FORMAT:
+        check.fail("format", f"is {doc['format']!r}, expected {MODEL_FORMAT!r}")
+    version = check.integer(doc["version"], "version")
+    if version != MODEL_VERSION:
+        check.fail("version", f"is {version}; this fogd reads version {MODEL_VERSION} (re-train, or upgrade fogd)")
+    name = check.string(doc["name"], "name")
+    method = check.string(doc["method"], "method")
+    if method not in METHODS:
+        check.fail("method", f"is {method!r}; known methods: {', '.join(METHODS)}")
+    inputs = check.inputs(doc["inputs"])
+    d = len(inputs)
+    check.mapping(doc["input_scaling"], "input_scaling", {"mean", "scale"})
+    x_mean = check.vector(doc["input_scaling"]["mean"], "input_scaling.mean", d)
+    x_scale = check.vector(doc["input_scaling"]["scale"], "input_scaling.scale", d, positive=True)
+    check.mapping(doc["output_scaling"], "output_scaling", {"mean", "scale"})
+    y_mean = check.number(doc["output_scaling"]["mean"], "output_scaling.mean")
+    y_scale = check.number(doc["output_scaling"]["scale"], "output_scaling.scale", positive=True)
+    check.mapping(doc["domain"], "domain", {"min", "max"})
+    domain_min = check.vector(doc["domain"]["min"], "domain.min", d)
+    domain_max = check.vector(doc["domain"]["max"], "domain.max", d)
+    if np.any(domain_min > domain_max):
+        check.fail("domain", "has min above max")
+    params = check.params(doc["params"], method, d)
+    check.number(doc["reference_dph"], "reference_dph")
+    for key in ("training", "metrics"):
+        check.mapping(doc[key], key, None)
+    created = check.string(doc["created_utc"], "created_utc")
+    check.string(doc["fogd_version"], "fogd_version")
+    return FrozenModel(
+        method=method,
+        inputs=inputs,
+        x_mean=x_mean,
+        x_scale=x_scale,
+        y_mean=y_mean,
+        y_scale=y_scale,
+        domain_min=domain_min,
+        domain_max=domain_max,
+        evaluator=build_evaluator(method, params),
+        name=name,
+        meta={
+            "reference_dph": doc["reference_dph"],
+            "training": doc["training"],
+            "metrics": doc["metrics"],
+            "created_utc": created,
+        },
+    )
+
+
+class _Checker:
+    """Field checks that raise ModelFileError naming the file and the field."""
+
+    def __init__(self, source: str) -> None:
+        self.source = source
+
+    def fail(self, where: str, what: str) -> None:
+        raise ModelFileError(f"{self.source}: field {where or 'top level'} {what}")
+
+    def mapping(self, value: Any, where: str, keys: set[str] | None) -> None:
+        if not isinstance(value, dict):
+            self.fail(where, f"must be an object, found {type(value).__name__}")
+        if keys is None:
+            return
+        missing, unknown = keys - value.keys(), value.keys() - keys
+        if missing:
+            self.fail(where, f"lacks {', '.join(sorted(missing))}")
+        if unknown:
+            self.fail(where, f"has unknown key(s) {', '.join(sorted(map(str, unknown)))}")
+
+    def string(self, value: Any, where: str) -> str:
+        if not isinstance(value, str) or len(value) > 256:
+            self.fail(where, "must be a string of at most 256 characters")
+        return value
+
+    def integer(self, value: Any, where: str) -> int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            self.fail(where, f"must be an integer, found {value!r:.40}")
+        return value
+
+    def number(self, value: Any, where: str, *, positive: bool = False) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            self.fail(where, f"must be a finite number, found {value!r:.40}")
+        if positive and not value > 0:
+            self.fail(where, f"must be positive, found {value!r}")
+        return float(value)
+
+    def vector(self, value: Any, where: str, length: int | None, *, positive: bool = False) -> np.ndarray:
+        if not isinstance(value, list) or (length is not None and len(value) != length):
+            self.fail(where, f"must be a list of {length if length is not None else 'some'} numbers")
+        if len(value) > MAX_ROWS:
+            self.fail(where, f"has more than {MAX_ROWS} entries")
+        return np.array([self.number(item, f"{where}[{i}]", positive=positive) for i, item in enumerate(value)])
+
+    def matrix(self, value: Any, where: str, columns: int) -> np.ndarray:
+        if not isinstance(value, list) or not value:
+            self.fail(where, "must be a non-empty list of rows")
+        if len(value) > MAX_ROWS:
+            self.fail(where, f"has more than {MAX_ROWS} rows")
+        return np.array([self.vector(row, f"{where}[{i}]", columns) for i, row in enumerate(value)])
+
+    def inputs(self, value: Any) -> tuple[InputSpec, ...]:
+        if not isinstance(value, list) or not 1 <= len(value) <= 16:
+            self.fail("inputs", "must be a list of 1 to 16 inputs")
+        specs = []
+        for i, item in enumerate(value):
+            where = f"inputs[{i}]"
+            if not isinstance(item, dict) or item.get("kind") not in KINDS:
+                self.fail(where, f"must be an object whose kind is one of {', '.join(KINDS)}")
+            if item["kind"] == TEMP_RATE:
+                self.mapping(item, where, {"kind", "window_s", "average_s", "step_s"})
+                settings = EstimatorSettings(
+                    *(self.number(item[key], f"{where}.{key}") for key in ("window_s", "average_s", "step_s"))
+                )
+                if not (0 < settings.average_s and 2 * settings.average_s <= settings.window_s <= 86400):
+                    self.fail(where, "needs 0 < 2 * average_s <= window_s <= 86400")
+                if not 0 <= settings.step_s <= settings.window_s:
+                    self.fail(where, "needs 0 <= step_s <= window_s")
+                specs.append(InputSpec(TEMP_RATE, settings))
+            else:
+                self.mapping(item, where, {"kind"})
+                specs.append(InputSpec(item["kind"]))
+        return tuple(specs)
+
+    def params(self, value: Any, method: str, d: int) -> dict[str, Any]:
+        self.mapping(value, "params", PARAM_KEYS[method])
+        out: dict[str, Any] = {"intercept": self.number(value["intercept"], "params.intercept")}
+        if method == "linear":
+            out["coef"] = self.vector(value["coef"], "params.coef", d)
+        elif method == "ls-poly":
+            powers = self.matrix(value["powers"], "params.powers", d)
+            if np.any(powers != np.round(powers)) or np.any(powers < 0) or np.any(powers > 20):
+                self.fail("params.powers", "must hold integers from 0 to 20")
+            out["powers"] = powers.astype(np.int64)
+            out["coef"] = self.vector(value["coef"], "params.coef", len(powers))
+        elif method == "rbf-nn":
+            out["centres"] = self.matrix(value["centres"], "params.centres", d)
+            out["width"] = self.number(value["width"], "params.width", positive=True)
+            out["coef"] = self.vector(value["coef"], "params.coef", len(out["centres"]))
+        else:
+            out["support_vectors"] = self.matrix(value["support_vectors"], "params.support_vectors", d)
+            out["dual_coef"] = self.vector(value["dual_coef"], "params.dual_coef", len(out["support_vectors"]))
+            out["gamma"] = self.number(value["gamma"], "params.gamma", positive=True)
+        return out
+
+
+def _floats(values: np.ndarray) -> list[float]:
+    return [float(value) for value in np.asarray(values, dtype=np.float64).ravel()]

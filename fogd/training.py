@@ -1,0 +1,106 @@
+"""Training: calibration runs in, a validated model document and its frozen model out.
+
+This is where the pieces meet: block rows from `features`, a fit from `models`, the calibrated domain and
+the estimator settings written into the model file so that serving cannot disagree with training.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from fogd import modelfile
+from fogd.features import TrainingSet, block_samples, training_set
+from fogd.frozen import FrozenModel
+from fogd.inputs import InputSpec, default_inputs
+from fogd.metrics import ErrorStats
+from fogd.models import FitOptions, Fitted, fit
+from fogd.runio import Run
+
+
+@dataclass
+class TrainConfig:
+    """Everything `fogd-train` decides besides the runs."""
+
+    method: str = "pso-svr"
+    inputs: tuple[InputSpec, ...] = field(default_factory=default_inputs)
+    block_s: float = 100.0
+    reference: str | float = "mean"  # 'mean' of all training blocks, or a rate in deg/h
+    fit: FitOptions = field(default_factory=FitOptions)
+    name: str | None = None
+
+
+@dataclass
+class Trained:
+    """A trained model with what produced it (the fit and the block rows) for tables and figures."""
+
+    document: dict[str, Any]
+    model: FrozenModel
+    fitted: Fitted
+    data: TrainingSet
+    reference_dph: float
+    error_dph: np.ndarray  # block targets: measured block means minus the reference
+    fit_dph: np.ndarray  # the model's prediction for each block
+
+    @property
+    def before(self) -> ErrorStats:
+        return ErrorStats.of(self.error_dph)
+
+    @property
+    def after(self) -> ErrorStats:
+        return ErrorStats.of(self.error_dph - self.fit_dph)
+
+
+def prepare(runs: list[Run], config: TrainConfig) -> tuple[TrainingSet, float]:
+    """Block rows of the runs and the reference rate; shared by every method of a comparison."""
+    data = training_set(runs, config.inputs, config.block_s)
+    reference = float(np.mean(data.rate_dph)) if config.reference == "mean" else float(config.reference)
+    return data, reference
+
+
+def train(runs: list[Run], config: TrainConfig, prepared: tuple[TrainingSet, float] | None = None) -> Trained:
+    """Fit `config.method` to the runs and return the validated model."""
+    data, reference = prepared or prepare(runs, config)
+    error = data.rate_dph - reference
+    fitted = fit(config.method, data.x, error, data.groups, config.fit)
+    created = dt.datetime.now(dt.timezone.utc).replace(microsecond=0).isoformat()
+    metrics = {
+        "train_before": ErrorStats.of(error).to_dict(),
+        "cv_rmse_dph": fitted.cv_rmse_dph,
+    }
+    document = modelfile.document(
+        name=config.name or f"{config.method}-{created[:10]}",
+        method=config.method,
+        inputs=config.inputs,
+        x_mean=fitted.x_mean,
+        x_scale=fitted.x_scale,
+        y_mean=fitted.y_mean,
+        y_scale=fitted.y_scale,
+        domain_min=data.domain_min,
+        domain_max=data.domain_max,
+        params=fitted.params,
+        reference_dph=reference,
+        training={
+            "runs": data.runs,
+            "rate_hz": float(np.median([run["rate_hz"] for run in data.runs])),
+            "block_s": config.block_s,
+            "block_samples": [block_samples(config.block_s, run["rate_hz"]) for run in data.runs],
+            "reference": config.reference if config.reference == "mean" else "value",
+            "fitness": config.fit.fitness if config.method == "pso-svr" else None,
+            "hyperparameters": _json_ready(fitted.hyperparameters),
+            "fitness_history_dph": [float(value) for value in fitted.fitness_history],
+        },
+        metrics=metrics,
+        created_utc=created,
+    )
+    model = modelfile.from_document(document)
+    fit_dph, _ = model.predict(data.x)
+    metrics["train_after"] = ErrorStats.of(error - fit_dph).to_dict()
+    return Trained(document, model, fitted, data, reference, error, fit_dph)
+
+
+def _json_ready(values: dict[str, Any]) -> dict[str, Any]:
+    return {key: value.item() if isinstance(value, np.generic) else value for key, value in values.items()}
