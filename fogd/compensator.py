@@ -86,7 +86,7 @@ class Compensator:
         flags = np.zeros(n, dtype=np.uint16)
 
         temp_ok = temperature_valid(temp_in)
-        flags[~temp_ok] |= Flag.TEMP_INVALID
+        flags[~temp_ok] |= int(Flag.TEMP_INVALID)
         temp_used = self._hold(temp_in, temp_ok)
         known = np.isfinite(temp_used)  # False only before the first valid temperature ever
 
@@ -97,20 +97,20 @@ class Compensator:
             warm_before = self.bank.count
             x = self.bank.update(temp_used[first:])
             warmup = np.arange(warm_before, warm_before + x.shape[0]) < self.bank.warmup
-            flags[first:][warmup] |= Flag.WARMUP
+            flags[first:][warmup] |= int(Flag.WARMUP)
             comp, clamped = self.model.predict(x)
-            flags[first:][clamped] |= Flag.CLAMPED
+            flags[first:][clamped] |= int(Flag.CLAMPED)
             comp_dph[first:] = comp
             if self._rate_column is not None:
                 temp_rate_cps[first:] = x[:, self._rate_column]
-        flags[~known] |= Flag.WARMUP
+        flags[~known] |= int(Flag.WARMUP)
 
         rate_ok = np.isfinite(rate_dph)
         if rate_valid is not None:
             rate_ok &= np.asarray(rate_valid, dtype=bool)
-        flags[~rate_ok] |= Flag.RATE_INVALID
+        flags[~rate_ok] |= int(Flag.RATE_INVALID)
         if temp_stale is not None:
-            flags[np.asarray(temp_stale, dtype=bool)] |= Flag.TEMP_STALE
+            flags[np.asarray(temp_stale, dtype=bool)] |= int(Flag.TEMP_STALE)
         rate_comp_dph = np.where(rate_ok, rate_dph - comp_dph, rate_dph)
         return Compensated(temp_used, temp_rate_cps, comp_dph, rate_comp_dph, flags)
 

@@ -21,6 +21,12 @@ from fogd.inputs import InputSpec
 _CHUNK_ROWS = 4096  # kernel evaluations in blocks, so memory stays bounded on million-row replays
 
 
+def _row_dot(rows: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """rows @ weights, summed row by row so a row's result never depends on how many rows came with it
+    (BLAS may round differently by batch size; the daemon and replay must agree bit for bit)."""
+    return (rows * weights).sum(axis=1)
+
+
 @dataclass(frozen=True)
 class Linear:
     """g(x) = coef . x + intercept (IEEE 952's linear model)."""
@@ -29,7 +35,7 @@ class Linear:
     intercept: float
 
     def __call__(self, xs: np.ndarray) -> np.ndarray:
-        return xs @ self.coef + self.intercept
+        return _row_dot(xs, self.coef) + self.intercept
 
 
 @dataclass(frozen=True)
@@ -44,7 +50,7 @@ class Polynomial:
         terms = np.ones((xs.shape[0], self.powers.shape[0]))
         for column in range(self.powers.shape[1]):
             terms *= xs[:, column : column + 1] ** self.powers[:, column]
-        return terms @ self.coef + self.intercept
+        return _row_dot(terms, self.coef) + self.intercept
 
 
 def _gaussian_sum(xs: np.ndarray, centres: np.ndarray, weights: np.ndarray, gamma: float) -> np.ndarray:
@@ -53,7 +59,7 @@ def _gaussian_sum(xs: np.ndarray, centres: np.ndarray, weights: np.ndarray, gamm
     for start in range(0, xs.shape[0], _CHUNK_ROWS):
         block = xs[start : start + _CHUNK_ROWS]
         squared = ((block[:, None, :] - centres[None, :, :]) ** 2).sum(axis=2)
-        out[start : start + _CHUNK_ROWS] = np.exp(-gamma * squared) @ weights
+        out[start : start + _CHUNK_ROWS] = _row_dot(np.exp(-gamma * squared), weights)
     return out
 
 
