@@ -1,0 +1,143 @@
+"""fogd's own binary frames (protocol `fogd`): a FOG-rate frame, a temperature frame and a compensated-output
+frame, each with a sync word, type, length, per-type sequence counter, device timestamp and CRC-16.
+
+Rate and temperature frames carry their own timestamps and counters so a rig with a separate FOG and
+temperature sensor can feed fogd at different rates, over one link or two. Byte tables: docs/fogd-frames.md.
+Everything is big-endian, like the KVH frames; floats are IEEE-754 single.
+"""
+
+import math
+import struct
+from collections.abc import Sequence
+
+from ..errors import ConfigError
+from .base import NAN, Frame, FrameError, Protocol
+from .crc import crc16_ccitt_false, crc16_ccitt_false_ok
+
+SYNC = b"\xf0\x0d"
+TYPE_RATE = 0x01
+TYPE_TEMP = 0x02
+TYPE_COMP = 0x03
+SEQ_MODULUS = 1 << 16
+
+_HEADER = struct.Struct(">2sBBHQ")  # sync, type, length (whole frame), seq, device time (us)
+_RATE = struct.Struct(">3fB")  # rate xyz (deg/h), axes
+_TEMP = struct.Struct(">f")  # temperature (C)
+_COMP = struct.Struct(">3f3f3fBffH")  # rate, compensation, compensated rate xyz (deg/h), axes, C, C/s, flags
+_CRC = struct.Struct(">H")
+_F32 = struct.Struct(">f")
+HEADER_LEN = _HEADER.size
+MIN_FRAME_LEN = HEADER_LEN + _CRC.size
+FRAME_LENGTHS = {
+    TYPE_RATE: HEADER_LEN + _RATE.size + _CRC.size,
+    TYPE_TEMP: HEADER_LEN + _TEMP.size + _CRC.size,
+    TYPE_COMP: HEADER_LEN + _COMP.size + _CRC.size,
+}
+
+
+def _axes_byte(valid: Sequence[bool], present: Sequence[bool]) -> int:
+    """Bits 0-2: axis x/y/z valid; bits 4-6: axis x/y/z present (fitted)."""
+    byte = 0
+    for axis in range(3):
+        if present[axis]:
+            byte |= 0x10 << axis
+            if valid[axis]:
+                byte |= 1 << axis
+    return byte
+
+
+def _axes(byte: int, x: float, y: float, z: float) -> tuple[tuple[bool, bool, bool], tuple[bool, bool, bool]]:
+    present = (bool(byte & 0x10), bool(byte & 0x20), bool(byte & 0x40))
+    isfinite = math.isfinite
+    valid = (
+        present[0] and bool(byte & 1) and isfinite(x),
+        present[1] and bool(byte & 2) and isfinite(y),
+        present[2] and bool(byte & 4) and isfinite(z),
+    )
+    return valid, present
+
+
+class FogdProtocol(Protocol):
+    """fogd frames; comp_axes are the axes whose rates `reencode` replaces in a rate frame."""
+
+    name = "fogd"
+    sync = SYNC
+    max_frame_len = 255
+    seq_modulus = SEQ_MODULUS
+
+    def __init__(self, comp_axes: Sequence[int] = (0, 1, 2)) -> None:
+        if not set(comp_axes) <= {0, 1, 2}:
+            raise ConfigError(f"fogd: comp_axes must be among 0, 1, 2 (x, y, z), not {list(comp_axes)}")
+        self.comp_axes = tuple(sorted(set(comp_axes)))
+
+    def frame_length(self, buf: bytes, start: int) -> int:
+        if len(buf) - start < 4:
+            return 0
+        length = buf[start + 3]
+        expected = FRAME_LENGTHS.get(buf[start + 2], length)
+        # A known type with a foreign length, or a length too short for header and CRC, is no header at all.
+        return length if length == expected and length >= MIN_FRAME_LEN else -1
+
+    def decode(self, raw: bytes) -> Frame:
+        if not crc16_ccitt_false_ok(raw):
+            raise FrameError("bad_crc", "fogd: CRC mismatch")
+        sync, frame_type, length, seq, time_us = _HEADER.unpack_from(raw)
+        if sync != SYNC or length != len(raw) or FRAME_LENGTHS.get(frame_type, length) != length:
+            raise ValueError(f"fogd: not a whole fogd frame ({len(raw)} bytes)")
+        t_s = time_us * 1e-6
+        if frame_type == TYPE_RATE:
+            x, y, z, axes = _RATE.unpack_from(raw, HEADER_LEN)
+            valid, present = _axes(axes, x, y, z)
+            return Frame("fogd", "rate", "rate", seq, t_s, (x, y, z), valid, present, None, raw)
+        if frame_type == TYPE_TEMP:
+            (temp_c,) = _TEMP.unpack_from(raw, HEADER_LEN)
+            return Frame("fogd", "temp", "temp", seq, t_s, temp_c=temp_c, raw=raw)
+        if frame_type == TYPE_COMP:
+            x, y, z, cx, cy, cz, rx, ry, rz, axes, temp_c, temp_rate_cps, flags = _COMP.unpack_from(raw, HEADER_LEN)
+            valid, present = _axes(axes, x, y, z)
+            return Frame(
+                "fogd", "comp", "comp", seq, t_s, (x, y, z), valid, present, temp_c, raw,
+                temp_rate_cps, (cx, cy, cz), (rx, ry, rz), flags,
+            )
+        return Frame("fogd", "other", "other", seq, t_s, raw=raw)
+
+    def encode(self, frame: Frame) -> bytes:
+        """A rate, temp or comp frame from a record of that kind (t_s must be >= 0; it travels in whole us)."""
+        if frame.t_s is None:
+            raise ValueError("fogd: a fogd frame needs t_s")
+        if frame.kind == "rate":
+            payload = _RATE.pack(*_rates(frame.rate_dph), _axes_byte(frame.axis_valid, frame.axis_present))
+            frame_type = TYPE_RATE
+        elif frame.kind == "temp":
+            payload = _TEMP.pack(NAN if frame.temp_c is None else frame.temp_c)
+            frame_type = TYPE_TEMP
+        elif frame.kind == "comp":
+            payload = _COMP.pack(
+                *_rates(frame.rate_dph), *_rates(frame.comp_dph), *_rates(frame.rate_comp_dph),
+                _axes_byte(frame.axis_valid, frame.axis_present),
+                NAN if frame.temp_c is None else frame.temp_c,
+                NAN if frame.temp_rate_cps is None else frame.temp_rate_cps,
+                frame.flags,
+            )
+            frame_type = TYPE_COMP
+        else:
+            raise ValueError(f"fogd: frames carry kind 'rate', 'temp' or 'comp', not {frame.kind!r}")
+        seq = (frame.seq or 0) % SEQ_MODULUS
+        time_us = round(frame.t_s * 1e6)
+        body = _HEADER.pack(SYNC, frame_type, FRAME_LENGTHS[frame_type], seq, time_us) + payload
+        return body + _CRC.pack(crc16_ccitt_false(body))
+
+    def reencode(self, frame: Frame, rate_dph: Sequence[float]) -> bytes:
+        raw = frame.raw
+        if frame.kind != "rate":
+            return raw
+        out = bytearray(raw)
+        for axis in self.comp_axes:
+            if frame.axis_valid[axis]:
+                _F32.pack_into(out, HEADER_LEN + 4 * axis, rate_dph[axis])
+        _CRC.pack_into(out, len(out) - 2, crc16_ccitt_false(out[:-2]))
+        return bytes(out)
+
+
+def _rates(values: Sequence[float] | None) -> tuple[float, float, float]:
+    return (NAN, NAN, NAN) if values is None else (values[0], values[1], values[2])
