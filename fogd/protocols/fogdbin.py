@@ -84,7 +84,7 @@ class FogdProtocol(Protocol):
         sync, frame_type, length, seq, time_us = _HEADER.unpack_from(raw)
         if sync != SYNC or length != len(raw) or FRAME_LENGTHS.get(frame_type, length) != length:
             raise ValueError(f"fogd: not a whole fogd frame ({len(raw)} bytes)")
-        t_s = time_us * 1e-6
+        t_s = time_us / 1e6
         if frame_type == TYPE_RATE:
             x, y, z, axes = _RATE.unpack_from(raw, HEADER_LEN)
             valid, present = _axes(axes, x, y, z)

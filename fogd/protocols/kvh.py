@@ -123,7 +123,7 @@ class KvhProtocol(Protocol):
         x, y, z, time_us, status, seq, temp = _BODY_B.unpack_from(raw, 4)
         rates, valid = self._rates(x, y, z, status)
         # The uint32 microsecond clock wraps every 4294.967296 s; consumers unwrap it.
-        return Frame("kvh-a", "imu", "B", seq, time_us * 1e-6, rates, valid, ALL_AXES, self._temp_c(temp), raw)
+        return Frame("kvh-a", "imu", "B", seq, time_us / 1e6, rates, valid, ALL_AXES, self._temp_c(temp), raw)
 
     def _decode_c(self, raw: bytes) -> Frame:
         if not crc32_mpeg2_ok(raw):
