@@ -25,7 +25,7 @@ class LexerCounters:
     frames_ok: int = 0  # accepted frames carrying data (kind imu, rate, temp, comp)
     other_frames: int = 0  # accepted frames carrying nothing fogd uses (KVH BIT replies, unknown fogd types)
     bad_crc: int = 0  # complete candidates whose CRC or checksum failed
-    truncated: int = 0  # failed candidates with another header inside them: a frame cut short, or a false header
+    truncated: int = 0  # failed candidates with another header inside (cut short, false header); flush() leftovers
     bad_line: int = 0  # line-format lines that did not parse
     garbage_bytes: int = 0
     seq_gaps: int = 0  # jumps in a sequence counter
@@ -71,7 +71,7 @@ class Lexer:
     def flush(self) -> None:
         """Drop what is buffered (end of stream, reconnect): an unfinished frame counts as truncated."""
         buf = self._buf
-        if buf and any(protocol.find(buf, 0) == 0 and protocol.frame_length(buf, 0) >= 0 for protocol in self.protocols):
+        if any(protocol.find(buf, 0) == 0 and protocol.frame_length(buf, 0) >= 0 for protocol in self.protocols):
             self.counters.truncated += 1
         self.counters.garbage_bytes += len(buf)
         self._buf = b""

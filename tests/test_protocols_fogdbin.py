@@ -134,3 +134,10 @@ def test_encode_needs_a_time_and_a_known_kind():
         FOGD.encode(Frame("fogd", "temp", temp_c=20.0))
     with pytest.raises(ValueError, match="imu"):
         FOGD.encode(Frame("fogd", "imu", t_s=0.0))
+
+
+def test_example_frames_in_the_docs_decode():
+    rate = FOGD.decode(bytes.fromhex("F00D011D020100000000002625A07FC000007FC0000041440000445ADB".replace(" ", "")))
+    assert (rate.seq, rate.t_s, rate.rate_dph[2], rate.axis_valid) == (513, 2.5, 12.25, (False, False, True))
+    temp = FOGD.decode(bytes.fromhex("F00D0214000700000000002625A041FC0000C88D".replace(" ", "")))
+    assert (temp.seq, temp.t_s, temp.temp_c) == (7, 2.5, 31.5)

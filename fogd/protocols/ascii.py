@@ -10,7 +10,7 @@ import re
 from collections.abc import Sequence
 
 from ..errors import ConfigError
-from .base import NAN, Z_ONLY, Frame, FrameError, Protocol
+from .base import NAN, Z_ONLY, Axes3, Frame, FrameError, Mask3, Protocol
 
 MAX_LINE_LEN = 256
 FIELD_COUNTS = {"R": 3, "T": 3, "I": 4, "C": 8}
@@ -32,7 +32,7 @@ def _text(value: float | None) -> str:
     return "" if value is None else repr(float(value))
 
 
-def _z_axis(rate_dph: float) -> tuple[tuple[float, float, float], tuple[bool, bool, bool]]:
+def _z_axis(rate_dph: float) -> tuple[Axes3, Mask3]:
     return (NAN, NAN, rate_dph), (False, False, math.isfinite(rate_dph))
 
 

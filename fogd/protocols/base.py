@@ -17,8 +17,6 @@ ALL_AXES: Mask3 = (True, True, True)
 NO_AXES: Mask3 = (False, False, False)
 Z_ONLY: Mask3 = (False, False, True)
 
-KINDS = ("imu", "rate", "temp", "comp", "other")
-
 
 @dataclass(slots=True)
 class Frame:

@@ -11,7 +11,7 @@ import struct
 from collections.abc import Sequence
 
 from ..errors import ConfigError
-from .base import NAN, Frame, FrameError, Protocol
+from .base import NAN, Axes3, Frame, FrameError, Mask3, Protocol
 from .crc import crc16_ccitt_false, crc16_ccitt_false_ok
 
 SYNC = b"\xf0\x0d"
@@ -46,7 +46,7 @@ def _axes_byte(valid: Sequence[bool], present: Sequence[bool]) -> int:
     return byte
 
 
-def _axes(byte: int, x: float, y: float, z: float) -> tuple[tuple[bool, bool, bool], tuple[bool, bool, bool]]:
+def _axes(byte: int, x: float, y: float, z: float) -> tuple[Mask3, Mask3]:
     present = (bool(byte & 0x10), bool(byte & 0x20), bool(byte & 0x40))
     isfinite = math.isfinite
     valid = (
@@ -139,5 +139,5 @@ class FogdProtocol(Protocol):
         return bytes(out)
 
 
-def _rates(values: Sequence[float] | None) -> tuple[float, float, float]:
+def _rates(values: Sequence[float] | None) -> Axes3:
     return (NAN, NAN, NAN) if values is None else (values[0], values[1], values[2])

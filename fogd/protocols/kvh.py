@@ -12,7 +12,7 @@ import struct
 from collections.abc import Sequence
 
 from ..errors import ConfigError
-from .base import ALL_AXES, NAN, Frame, FrameError, Protocol
+from .base import ALL_AXES, NAN, Axes3, Frame, FrameError, Mask3, Protocol
 from .crc import crc32_mpeg2, crc32_mpeg2_ok
 
 HEADER_A = b"\xfe\x81\xff\x55"
@@ -101,7 +101,7 @@ class KvhProtocol(Protocol):
             raise ValueError(f"kvh-a: not a whole KVH frame: {raw[:4].hex()}... ({len(raw)} bytes)")
         return decoder(raw)
 
-    def _rates(self, x: float, y: float, z: float, status: int) -> tuple[tuple[float, float, float], tuple]:
+    def _rates(self, x: float, y: float, z: float, status: int) -> tuple[Axes3, Mask3]:
         isfinite = math.isfinite
         scale = self.dph_per_unit
         valid = (bool(status & 1) and isfinite(x), bool(status & 2) and isfinite(y), bool(status & 4) and isfinite(z))
