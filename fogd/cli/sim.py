@@ -1,0 +1,207 @@
+"""`fogd-sim`: write a simulated thermal-chamber FOG run as a CSV (`t_s,rate_dph,temp_c,true_error_dph`).
+
+This module owns the command line only: parsing and checking options, turning them into a profile and
+`SimParams`, and writing the run with `fogd.runio.write_csv`. The physics lives in `fogd.simulator`, the
+chamber profiles in `fogd.profiles`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import time
+from typing import NoReturn
+
+import numpy as np
+
+from fogd import profiles
+from fogd.errors import FogdError, UsageError
+from fogd.runio import write_csv
+from fogd.simulator import MAX_RATE_HZ, MIN_RATE_HZ, SimParams, Simulation
+
+PROG = "fogd-sim"
+DEFAULTS = SimParams()
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that raises UsageError (one line) instead of printing usage and exiting."""
+
+    def error(self, message: str) -> NoReturn:
+        raise UsageError(f"{message} (see {PROG} --help)")
+
+
+def _bounded(low: float, high: float, unit: str):
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not (math.isfinite(value) and low <= value <= high):
+            raise argparse.ArgumentTypeError(f"{text} is outside {low:g}..{high:g} {unit}")
+        return value
+
+    return parse
+
+
+def _positive(unit: str):
+    def parse(text: str) -> float:
+        value = _bounded(0.0, math.inf, unit)(text)
+        if value == 0:
+            raise argparse.ArgumentTypeError(f"{text} must be greater than 0 {unit}")
+        return value
+
+    return parse
+
+
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text} is negative (a seed is a whole number >= 0)")
+    return value
+
+
+def _parser() -> argparse.ArgumentParser:
+    builtins = "\n".join(f"  {name:16s} {profiles.summary(name)}" for name in profiles.names())
+    parser = _Parser(
+        prog=PROG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Simulate a fibre-optic gyro in a thermal chamber and write the run as CSV with columns\n"
+        "t_s (s), rate_dph (deg/h), temp_c (the temperature sensor's report, C) and true_error_dph\n"
+        "(the thermal error alone, deg/h; rate_dph - true_error_dph is the best possible compensation).",
+        epilog=f"built-in profiles:\n{builtins}\n\n"
+        "A profile file is a YAML list of [duration_s, target_c] pairs: the run starts at the first target\n"
+        "and each segment moves linearly to its target over its duration (a soak repeats the target).",
+    )
+    add = parser.add_argument
+    add("--profile", metavar="NAME|FILE", help="a built-in profile name or a YAML profile file (required)")
+    add("-o", "--output", metavar="PATH", help="CSV file to write, '-' for stdout (required)")
+    add("--rate-hz", metavar="HZ", type=_bounded(MIN_RATE_HZ, MAX_RATE_HZ, "Hz"), default=200.0,
+        help=f"gyro output rate, {MIN_RATE_HZ:g}..{MAX_RATE_HZ:g} Hz (default: 200)")
+    add("--seed", metavar="N", type=_seed, default=1, help="random seed; the same seed gives the same file (default: 1)")
+    add("--sensor-resolution-c", metavar="C", type=_positive("C"), default=DEFAULTS.sensor_resolution_c,
+        help=f"temperature sensor quantum, C (default: {DEFAULTS.sensor_resolution_c:g}, a DS18B20; "
+        "1 for whole degrees)")
+    add("--sensor-rate-hz", metavar="HZ", type=_positive("Hz"), default=DEFAULTS.sensor_rate_hz,
+        help=f"temperature sensor update rate, Hz; held between updates (default: {DEFAULTS.sensor_rate_hz:g})")
+    add("--arw-dpsh", metavar="DPSH", type=_bounded(0.0, 10.0, "deg/sqrt(h)"), default=DEFAULTS.arw_dpsh,
+        help=f"angle random walk, deg/sqrt(h) (default: {DEFAULTS.arw_dpsh:g})")
+    add("--bias-instability-dph", metavar="DPH", type=_bounded(0.0, 100.0, "deg/h"), default=DEFAULTS.bias_instability_dph,
+        help=f"bias instability, deg/h (default: {DEFAULTS.bias_instability_dph:g})")
+    add("--latitude-deg", metavar="DEG", type=_bounded(-90.0, 90.0, "deg"), default=DEFAULTS.latitude_deg,
+        help=f"latitude for the Earth rate on the vertical sensing axis, deg (default: {DEFAULTS.latitude_deg:g})")
+    add("--no-noise", action="store_true",
+        help="no ARW, bias instability, turn-on bias or sensor noise (Earth rate and quantisation stay)")
+    add("--list-profiles", action="store_true", help="print the built-in profile names and exit")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    try:
+        return _run(_parser().parse_args(argv))
+    except FogdError as error:
+        print(f"{PROG}: {error}", file=sys.stderr)
+        return error.exit_status
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 130
+
+
+def _run(args: argparse.Namespace) -> int:
+    if args.list_profiles:
+        print("\n".join(profiles.names()))
+        return 0
+    missing = [option for option, value in (("--profile", args.profile), ("-o/--output", args.output)) if not value]
+    if missing:
+        raise UsageError(f"missing {' and '.join(missing)} (see {PROG} --help)")
+    profile = profiles.resolve(args.profile)
+    params = SimParams(
+        sensor_resolution_c=args.sensor_resolution_c,
+        sensor_rate_hz=args.sensor_rate_hz,
+        arw_dpsh=args.arw_dpsh,
+        bias_instability_dph=args.bias_instability_dph,
+        latitude_deg=args.latitude_deg,
+    )
+    if args.no_noise:
+        params = params.without_noise()
+    started = time.perf_counter()
+    run = Simulation(profile, args.rate_hz, args.seed, params)
+    try:
+        _write(args.output, run)
+    except FogdError as error:
+        if args.output == "-" and isinstance(error.__context__, BrokenPipeError):
+            # The reader (e.g. `head`) has gone: stop quietly like other Unix filters.
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            return 141
+        raise
+    if args.output != "-":
+        print(
+            f"{PROG}: wrote {args.output}: {run.rows} rows, {profile.duration_s / 3600:.2f} h at "
+            f"{run.rate_hz:g} Hz in {time.perf_counter() - started:.1f} s",
+            file=sys.stderr,
+        )
+    return 0
+
+
+def _write(path: str, run: Simulation) -> None:
+    params = run.params
+    comments = [
+        f"fogd-sim run: profile {run.profile.name} ({run.profile.describe()})",
+        f"seed {run.seed}, rate {run.rate_hz:g} Hz, duration {run.profile.duration_s:g} s",
+        f"sensor: housing temperature, lag {params.sensor_tau_s:g} s, {params.sensor_rate_hz:g} Hz, "
+        f"resolution {params.sensor_resolution_c:g} C, noise {params.sensor_noise_c:g} C",
+        f"noise: ARW {params.arw_dpsh:g} deg/sqrt(h), bias instability {params.bias_instability_dph:g} deg/h, "
+        f"turn-on bias {run.turn_on_bias_dph:+.6f} deg/h, Earth rate {run.earth_rate_dph:.6f} deg/h "
+        f"(latitude {params.latitude_deg:g} deg)",
+        "true_error_dph is the thermal error alone; rate_dph - true_error_dph is the best possible compensation",
+    ]
+    blocks = _Blocks(run)
+    columns = {name: _Column(blocks, name) for name in ("t_s", "rate_dph", "temp_c", "true_error_dph")}
+    formats = {
+        "t_s": "%.6f",
+        "rate_dph": "%.6f",
+        "temp_c": f"%.{_decimals(params.sensor_resolution_c)}f",
+        "true_error_dph": "%.7f",
+    }
+    write_csv(path, columns, formats, comments=comments)
+
+
+class _Blocks:
+    """The run's rows made one slice at a time; write_csv asks every column for the same slice in turn."""
+
+    def __init__(self, run: Simulation) -> None:
+        self.run = run
+        self.rows: tuple[int, int] | None = None
+        self.columns: dict[str, np.ndarray] = {}
+
+    def get(self, name: str, start: int, stop: int) -> np.ndarray:
+        if self.rows != (start, stop):
+            self.rows, self.columns = (start, stop), self.run.columns(start, stop)
+        return self.columns[name]
+
+
+class _Column:
+    """A column that write_csv can take (len and slicing) without the whole run being in memory."""
+
+    def __init__(self, blocks: _Blocks, name: str) -> None:
+        self.blocks, self.name = blocks, name
+
+    def __len__(self) -> int:
+        return self.blocks.run.rows
+
+    def __getitem__(self, rows: slice) -> np.ndarray:
+        start, stop, _ = rows.indices(len(self))
+        return self.blocks.get(self.name, start, stop)
+
+
+def _decimals(resolution_c: float) -> int:
+    """Fewest decimals that print every multiple of the sensor's resolution exactly (at most 6)."""
+    for decimals in range(7):
+        scaled = resolution_c * 10**decimals
+        if abs(scaled - round(scaled)) < 1e-9 * max(1.0, scaled):
+            return decimals
+    return 6
