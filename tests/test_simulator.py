@@ -1,0 +1,172 @@
+"""The chamber simulator: thermal lags, sensor behaviour, noise levels, error magnitudes, hysteresis, seeds."""
+
+import math
+
+import numpy as np
+import pytest
+
+from fogd import profiles
+from fogd.profiles import Profile
+from fogd.simulator import EARTH_RATE_DPH, SimParams, Simulation, simulate
+
+QUIET = SimParams().without_noise()
+RAMP_CPS = 0.005
+# A ramp long enough (>> the sum of the time constants) for every lag to reach its steady ramp offset.
+LONG_RAMP = Profile("long-ramp", ((100.0, 0.0), (20_000.0, 100.0), (30_000.0, 100.0)))
+
+
+@pytest.fixture(scope="module")
+def long_ramp():
+    return simulate(LONG_RAMP, 1.0, 0, SimParams(sensor_noise_c=0.0))
+
+
+def test_each_stage_lags_the_one_outside_it_by_rate_times_time_constant(long_ramp):
+    end = 20_100  # the end of the ramp, at 1 Hz
+    p = long_ramp.params
+    lags = {
+        "chamber": (long_ramp.chamber_c, p.chamber_tau_s),
+        "housing": (long_ramp.housing_c, p.chamber_tau_s + p.housing_tau_s),
+        "outer": (long_ramp.coil_outer_c, p.chamber_tau_s + p.housing_tau_s + p.coil_outer_tau_s),
+        "inner": (long_ramp.coil_inner_c, p.chamber_tau_s + p.housing_tau_s + p.coil_outer_tau_s + p.coil_inner_tau_s),
+    }
+    for name, (temp_c, tau_s) in lags.items():
+        lag_c = long_ramp.setpoint_c[end] - temp_c[end]
+        assert lag_c == pytest.approx(RAMP_CPS * tau_s, rel=1e-3), name
+    assert (long_ramp.setpoint_c[end] > long_ramp.chamber_c[end] > long_ramp.housing_c[end]
+            > long_ramp.coil_outer_c[end] > long_ramp.coil_inner_c[end])
+
+
+def test_everything_converges_to_the_setpoint_after_a_long_soak(long_ramp):
+    for temp_c in (long_ramp.chamber_c, long_ramp.housing_c, long_ramp.coil_outer_c, long_ramp.coil_inner_c):
+        assert temp_c[-1] == pytest.approx(100.0, abs=1e-3)
+    assert abs(long_ramp.temp_c[-1] - 100.0) <= long_ramp.params.sensor_resolution_c / 2
+
+
+def test_the_run_starts_soaked_at_the_first_target(long_ramp):
+    assert long_ramp.coil_inner_c[0] == 0.0 and long_ramp.temp_c[0] == 0.0
+    assert long_ramp.true_error_dph[0] == pytest.approx(long_ramp.true_error_dph[50], abs=1e-12)
+
+
+def test_sensor_reads_the_housing_not_the_coil(long_ramp):
+    on_ramp = slice(5_000, 20_000)
+    allowance_c = RAMP_CPS * long_ramp.params.sensor_tau_s + long_ramp.params.sensor_resolution_c
+    assert np.max(np.abs(long_ramp.temp_c[on_ramp] - long_ramp.housing_c[on_ramp])) <= allowance_c * 1.01
+    assert np.min(long_ramp.temp_c[on_ramp] - long_ramp.coil_inner_c[on_ramp]) > 2.0
+
+
+@pytest.mark.parametrize("resolution_c", [0.0625, 1.0])
+def test_sensor_is_quantised_and_held_between_updates(resolution_c):
+    params = SimParams(sensor_resolution_c=resolution_c, sensor_rate_hz=4.0)
+    run = simulate(Profile("r", ((60.0, 20.0), (600.0, 40.0))), 100.0, 3, params)
+    quanta = run.temp_c / resolution_c
+    assert np.array_equal(quanta, np.round(quanta))
+    changes = np.count_nonzero(np.diff(run.temp_c))
+    assert 0 < changes <= run.t_s[-1] * params.sensor_rate_hz
+    held = run.temp_c[: (run.t_s.size // 25) * 25].reshape(-1, 25)  # 25 rows = one 4 Hz period
+    assert np.all(held == held[:, :1])
+
+
+@pytest.mark.parametrize("arw_dpsh", [0.004, 0.01])
+def test_arw_is_recovered_from_the_white_noise(arw_dpsh):
+    rate_hz = 200.0
+    run = simulate(Profile("s", ((600.0, 20.0), (600.0, 30.0))), rate_hz, 5, SimParams(arw_dpsh=arw_dpsh))
+    residual_dph = run.rate_dph - run.true_error_dph
+    # Differencing removes the slow terms (bias instability, turn-on bias, Earth rate); white noise grows by sqrt 2.
+    white_std_dph = np.std(np.diff(residual_dph)) / math.sqrt(2.0)
+    assert white_std_dph == pytest.approx(60.0 * arw_dpsh * math.sqrt(rate_hz), rel=0.1)
+
+
+def test_earth_rate_is_the_only_offset_without_noise():
+    profile = Profile("s", ((60.0, 20.0),))
+    run = simulate(profile, 10.0, 1, QUIET)
+    assert np.allclose(run.rate_dph - run.true_error_dph, EARTH_RATE_DPH * math.sin(math.radians(30.5)))
+    equator = simulate(profile, 10.0, 1, SimParams(latitude_deg=0.0).without_noise())
+    assert np.allclose(equator.rate_dph, equator.true_error_dph)
+
+
+def test_paper_train_error_has_the_papers_magnitude():
+    run = simulate(profiles.builtin("paper-train"), 1.0, 1, QUIET)
+    span_dph = np.ptp(run.true_error_dph)
+    assert 0.1 <= span_dph <= 0.35
+    assert 0.04 <= np.std(run.true_error_dph) <= 0.12  # the paper's table 3: RMSE 0.081 deg/h before compensation
+
+
+def test_shupe_term_on_a_steady_ramp_is_the_rate_coefficient_times_the_ramp_rate():
+    params = SimParams(static_dph=(0.0, 0.0, 0.0), hysteresis_dph=0.0).without_noise()
+    run = simulate(LONG_RAMP, 1.0, 0, params)
+    assert run.true_error_dph[20_000] == pytest.approx(params.shupe_rate_dph_per_cps * RAMP_CPS, rel=1e-3)
+    assert run.true_error_dph[-1] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_shupe_terms_follow_the_coils_mean_rate_and_gradient_rate():
+    params = SimParams(static_dph=(0.0, 0.0, 0.0), hysteresis_dph=0.0, shupe_rate_dph_per_cps=5.0,
+                       shupe_gradient_rate_dph_per_cps=40.0).without_noise()
+    run = simulate(profiles.builtin("fast-ramp"), 1.0, 0, params)
+    mean_cps = np.gradient(0.5 * (run.coil_outer_c + run.coil_inner_c), run.t_s)
+    gradient_cps = np.gradient(run.coil_outer_c - run.coil_inner_c, run.t_s)
+    expected_dph = 5.0 * mean_cps + 40.0 * gradient_cps  # eq. 4 without its static term
+    assert np.max(np.abs(run.true_error_dph - expected_dph)) < 0.01 * np.max(np.abs(expected_dph))
+    assert np.max(40.0 * gradient_cps) > 0.01  # the gradient term is not negligible on this ramp
+
+
+def _soaked_error_dph(start_c: float, params: SimParams) -> tuple[float, float]:
+    """(sensor temperature, true error) after approaching 30 C from `start_c` and soaking for 10 h."""
+    run = simulate(Profile("h", ((600.0, start_c), (3600.0, 30.0), (36_000.0, 30.0))), 1.0, 0, params)
+    return run.temp_c[-1], run.true_error_dph[-1]
+
+
+@pytest.mark.parametrize("hysteresis_dph", [0.0, 0.02, 0.05])
+def test_error_after_heating_differs_from_after_cooling_by_the_hysteresis(hysteresis_dph):
+    params = SimParams(hysteresis_dph=hysteresis_dph).without_noise()
+    heated_c, heated_dph = _soaked_error_dph(10.0, params)
+    cooled_c, cooled_dph = _soaked_error_dph(50.0, params)
+    assert heated_c == cooled_c == 30.0
+    assert heated_dph - cooled_dph == pytest.approx(2.0 * hysteresis_dph, abs=1e-6)
+
+
+def test_same_sensor_temperature_heating_and_cooling_give_different_errors():
+    run = simulate(profiles.builtin("cycle"), 1.0, 0, QUIET)
+    top = int(np.argmax(run.temp_c))
+    heating = np.flatnonzero(run.temp_c[:top] == 20.0)
+    cooling = top + np.flatnonzero(run.temp_c[top:] == 20.0)
+    assert heating.size and cooling.size
+    assert run.true_error_dph[heating].min() - run.true_error_dph[cooling].max() > 0.02
+
+
+def test_same_seed_same_run_and_another_seed_another_run():
+    profile = Profile("s", ((120.0, 20.0), (120.0, 25.0)))
+    first, again, other = (simulate(profile, 50.0, seed) for seed in (7, 7, 8))
+    for name in ("rate_dph", "temp_c", "true_error_dph"):
+        assert np.array_equal(getattr(first, name), getattr(again, name)), name
+    assert not np.array_equal(first.rate_dph, other.rate_dph)
+    assert first.turn_on_bias_dph != other.turn_on_bias_dph
+    assert np.array_equal(first.true_error_dph, other.true_error_dph)
+
+
+def test_rows_are_the_same_whichever_blocks_they_are_made_in():
+    sim = Simulation(Profile("s", ((100.0, 20.0), (200.0, 30.0))), 1000.0, 2)
+    whole = sim.columns()
+    cuts = [0, 1, 65_535, 65_537, 200_000, sim.rows]
+    for name, values in whole.items():
+        pieces = np.concatenate([sim.columns(a, b)[name] for a, b in zip(cuts[:-1], cuts[1:])])
+        assert np.array_equal(pieces, values), name
+
+
+@pytest.mark.parametrize("rate_hz", [1.0, 7.0, 5000.0])
+def test_any_rate_from_1_to_5000_hz_gives_uniform_time(rate_hz):
+    run = simulate(Profile("s", ((4.0, 20.0),)), rate_hz, 0)
+    assert run.t_s.size == int(4 * rate_hz) + 1
+    assert np.allclose(np.diff(run.t_s), 1.0 / rate_hz)
+
+
+@pytest.mark.parametrize("rate_hz", [0.5, 5001.0])
+def test_rate_outside_the_range_is_refused(rate_hz):
+    with pytest.raises(ValueError, match="rate_hz"):
+        simulate(Profile("s", ((4.0, 20.0),)), rate_hz, 0)
+
+
+def test_bad_parameters_are_refused():
+    with pytest.raises(ValueError, match="housing_tau_s"):
+        SimParams(housing_tau_s=0.0)
+    with pytest.raises(ValueError, match="arw_dpsh"):
+        SimParams(arw_dpsh=-1.0)
