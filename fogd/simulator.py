@@ -14,7 +14,7 @@ sample-and-hold housing temperature. Everything is seeded and reproducible.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 from scipy.linalg import expm
@@ -74,11 +74,7 @@ class SimParams:
 
     def without_noise(self) -> SimParams:
         """The same FOG with no random terms (the Earth rate and the sensor quantisation stay)."""
-        return _replace(self, sensor_noise_c=0.0, arw_dpsh=0.0, bias_instability_dph=0.0, turn_on_bias_dph=0.0)
-
-
-def _replace(params: SimParams, **changes: float) -> SimParams:
-    return SimParams(**{**{f.name: getattr(params, f.name) for f in fields(params)}, **changes})
+        return replace(self, sensor_noise_c=0.0, arw_dpsh=0.0, bias_instability_dph=0.0, turn_on_bias_dph=0.0)
 
 
 @dataclass
