@@ -8,7 +8,7 @@ checks every array's shape and finiteness; anything else is a `ModelFileError` w
 from __future__ import annotations
 
 import json
-import math
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +24,7 @@ MODEL_FORMAT = "fogd-model"
 MODEL_VERSION = 1
 MAX_MODEL_BYTES = 32 * 1024 * 1024
 MAX_ROWS = 100_000  # support vectors, centres or polynomial terms
+_FLOAT_MAX = sys.float_info.max
 METHODS = ("linear", "ls-poly", "rbf-nn", "pso-svr")
 TOP_KEYS = {
     "format", "version", "name", "method", "inputs", "input_scaling", "output_scaling", "domain", "params",
@@ -100,6 +101,8 @@ def load(path: str | Path) -> FrozenModel:
         raise ModelFileError(f"cannot read model: {describe_os_error(error)}") from None
     if len(data) > MAX_MODEL_BYTES:
         raise ModelFileError(f"{source}: larger than {MAX_MODEL_BYTES // 2**20} MiB; not a fogd model file")
+    if not data.strip():
+        raise ModelFileError(f"{source}: empty file; not a fogd model file")
     for magic, what in _BINARY_MAGIC.items():
         if data.startswith(magic):
             raise ModelFileError(f"{source}: this is {what}, not a fogd JSON model; fogd never loads pickles")
@@ -190,7 +193,7 @@ class _Checker:
         if missing:
             self.fail(where, f"lacks {', '.join(sorted(missing))}")
         if unknown:
-            self.fail(where, f"has unknown key(s) {', '.join(sorted(map(str, unknown)))}")
+            self.fail(where, f"has unknown key(s) {', '.join(sorted(map(repr, unknown)))}")
 
     def string(self, value: Any, where: str) -> str:
         if not isinstance(value, str) or len(value) > 256:
@@ -203,7 +206,8 @@ class _Checker:
         return value
 
     def number(self, value: Any, where: str, *, positive: bool = False) -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        # a range test, not math.isfinite: a JSON integer of 400 digits overflows float() but compares fine
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not -_FLOAT_MAX <= value <= _FLOAT_MAX:
             self.fail(where, f"must be a finite number, found {value!r:.40}")
         if positive and not value > 0:
             self.fail(where, f"must be positive, found {value!r}")

@@ -80,7 +80,7 @@ def read_run(path: str | Path, *, max_gap_periods: float = MAX_GAP_PERIODS) -> R
         raise InputError(f"{path}: no data rows after the header")
     columns = {name: np.ascontiguousarray(table[:, index]) for index, name in enumerate(names)}
     t_s = columns.pop("t_s")
-    rate_hz = _check_time(path, t_s, header_line, max_gap_periods)
+    rate_hz = _check_time(path, t_s, text, header_line, max_gap_periods)
     return Run(
         path=path,
         t_s=t_s,
@@ -121,18 +121,18 @@ def _is_number(text: str) -> bool:
 def _first_bad_line(path: str, text: str, header_line: int, width: int) -> str:
     """The message for the first data line numpy could not read (only run on the error path)."""
     for number, line in enumerate(text.splitlines(), start=1):
-        if number <= header_line or not line.strip():
+        if number <= header_line or not line:  # numpy skips empty lines, not lines of spaces
             continue
         cells = line.split(",")
         if len(cells) != width:
             return f"{path}:{number}: {len(cells)} cells where the header has {width}: {line[:60]!r}"
         for column, cell in enumerate(cells, start=1):
-            if not _is_number(cell):
+            if not _is_number(cell) or "_" in cell or not cell.strip().isascii():  # float() takes 1_0 and ١; numpy not
                 return f"{path}:{number}: column {column} is not a number: {cell.strip()[:40]!r}"
     return f"{path}: unreadable data after line {header_line}"
 
 
-def _check_time(path: str, t_s: np.ndarray, header_line: int, max_gap_periods: float) -> float:
+def _check_time(path: str, t_s: np.ndarray, text: str, header_line: int, max_gap_periods: float) -> float:
     """Checks that time increases with no gaps; returns the data rate in Hz."""
     finite = np.flatnonzero(np.isfinite(t_s))
     if finite.size < 2:
@@ -142,7 +142,7 @@ def _check_time(path: str, t_s: np.ndarray, header_line: int, max_gap_periods: f
     if bad.size:
         row = finite[bad[0] + 1]
         raise InputError(
-            f"{path}:{_line_of(row, header_line)}: time does not increase "
+            f"{path}:{_line_of(row, text, header_line)}: time does not increase "
             f"({t_s[finite[bad[0]]]:.6g} s then {t_s[row]:.6g} s)"
         )
     period_s = float(np.median(step))
@@ -150,15 +150,16 @@ def _check_time(path: str, t_s: np.ndarray, header_line: int, max_gap_periods: f
     if gaps.size:
         row = finite[gaps[0] + 1]
         raise InputError(
-            f"{path}:{_line_of(row, header_line)}: gap of {step[gaps[0]]:.6g} s in time "
+            f"{path}:{_line_of(row, text, header_line)}: gap of {step[gaps[0]]:.6g} s in time "
             f"(sample period {period_s:.6g} s); split the run into separate files at the gap"
         )
     return 1.0 / period_s
 
 
-def _line_of(row: int, header_line: int) -> int:
-    """File line of data row `row` (0-based), assuming no blank lines inside the data."""
-    return header_line + 1 + int(row)
+def _line_of(row: int, text: str, header_line: int) -> int:
+    """File line of data row `row` (0-based); numpy skips empty lines, so they are not counted as rows."""
+    lines = text.splitlines()[header_line:]
+    return [number for number, line in enumerate(lines, start=header_line + 1) if line][int(row)]
 
 
 def open_output(path: str) -> IO[str]:
