@@ -128,14 +128,14 @@ def from_document(doc: Any, *, source: str = "model") -> FrozenModel:
     check = _Checker(source)
     check.mapping(doc, "", TOP_KEYS)
     if doc["format"] != MODEL_FORMAT:
-        check.fail("format", f"is {doc['format']!r}, expected {MODEL_FORMAT!r}")
+        check.fail("format", f"is {str(doc['format'])[:40]!r}, expected {MODEL_FORMAT!r}")
     version = check.integer(doc["version"], "version")
     if version != MODEL_VERSION:
         check.fail("version", f"is {version}; this fogd reads version {MODEL_VERSION} (re-train, or upgrade fogd)")
     name = check.string(doc["name"], "name")
     method = check.string(doc["method"], "method")
     if method not in METHODS:
-        check.fail("method", f"is {method!r}; known methods: {', '.join(METHODS)}")
+        check.fail("method", f"is {method[:40]!r}; known methods: {', '.join(METHODS)}")
     inputs = check.inputs(doc["inputs"])
     d = len(inputs)
     check.mapping(doc["input_scaling"], "input_scaling", {"mean", "scale"})

@@ -9,8 +9,8 @@ from __future__ import annotations
 import difflib
 import hashlib
 import io
-import math
 import sys
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Iterator
@@ -69,11 +69,13 @@ def read_run(path: str | Path, *, max_gap_periods: float = MAX_GAP_PERIODS) -> R
             f"{path}:{header_line}: missing column(s) {', '.join(hints)}; the header has "
             f"{','.join(names) or 'nothing'}; a run needs {','.join(RUN_COLUMNS)}"
         )
-    text = data.decode("utf-8", errors="replace")
+    text = data.decode("utf-8-sig", errors="replace")
     try:
-        table = np.loadtxt(
-            io.StringIO(text), delimiter=",", skiprows=header_line, ndmin=2, comments=None, dtype=np.float64
-        )
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # "input contained no data": reported below
+            table = np.loadtxt(
+                io.StringIO(text), delimiter=",", skiprows=header_line, ndmin=2, comments=None, dtype=np.float64
+            )
     except ValueError:
         raise InputError(_first_bad_line(path, text, header_line, len(names))) from None
     if table.shape[0] == 0:
@@ -95,7 +97,7 @@ def read_run(path: str | Path, *, max_gap_periods: float = MAX_GAP_PERIODS) -> R
 def _header(path: str, data: bytes) -> tuple[int, list[str]]:
     """(1-based line number of the header, its column names); '#' lines before it are comments."""
     for number, raw in enumerate(data.splitlines(), start=1):
-        line = raw.decode("utf-8", errors="replace").strip()
+        line = raw.decode("utf-8-sig", errors="replace").strip()
         if not line or line.startswith("#"):
             continue
         names = [name.strip() for name in line.split(",")]
@@ -198,8 +200,3 @@ def write_csv(path: str, columns: dict[str, np.ndarray], formats: dict[str, str]
 def _chunks(length: int, size: int) -> Iterator[tuple[int, int]]:
     for start in range(0, length, size):
         yield start, min(start + size, length)
-
-
-def finite_or_none(value: float) -> float | None:
-    """A float for JSON: None for NaN/Inf."""
-    return value if math.isfinite(value) else None
