@@ -29,6 +29,7 @@ KIND_NAMES = {KIND_IMU: "imu", KIND_RATE: "rate", KIND_TEMP: "temp", KIND_OTHER:
 SAMPLE_DTYPE = np.dtype(
     [
         ("kind", np.uint8),
+        ("message", "S8"),  # the wire message ('A', 'rate', 'dsp3000', ...), for re-encoding
         ("seq", np.int32),  # -1 when the format has no counter
         ("t_dev_s", np.float64),  # device time; NaN when the format has none
         ("t_rx_s", np.float64),  # time.monotonic() when the read that completed the frame returned
@@ -57,9 +58,10 @@ def pack_frames(frames: Sequence[Frame], t_rx_s: float) -> np.ndarray:
     if n == 0:
         return batch
     raw = bytearray(n * RAW_SLOT_BYTES)
-    kinds, seqs, times, rates, valid, present, temps, has_temp, lengths = [], [], [], [], [], [], [], [], []
+    kinds, messages, seqs, times, rates, valid, present, temps, has_temp, lengths = ([] for _ in range(10))
     for i, frame in enumerate(frames):
         kinds.append(KIND_CODES.get(frame.kind, KIND_OTHER))
+        messages.append(frame.message.encode("ascii", "replace"))
         seqs.append(-1 if frame.seq is None else frame.seq)
         times.append(math.nan if frame.t_s is None else frame.t_s)
         rates.append(frame.rate_dph or _NAN3)
@@ -72,6 +74,7 @@ def pack_frames(frames: Sequence[Frame], t_rx_s: float) -> np.ndarray:
         lengths.append(len(data))
         raw[i * RAW_SLOT_BYTES : i * RAW_SLOT_BYTES + len(data)] = data
     batch["kind"] = kinds
+    batch["message"] = messages
     batch["seq"] = seqs
     batch["t_dev_s"] = times
     batch["t_rx_s"] = t_rx_s
@@ -88,6 +91,46 @@ def pack_frames(frames: Sequence[Frame], t_rx_s: float) -> np.ndarray:
 def raw_bytes(record: np.void) -> bytes:
     """The frame bytes stored in one ring record."""
     return record["raw"][: record["raw_len"]].tobytes()
+
+
+def mask(bits: int) -> tuple[bool, bool, bool]:
+    """An axis bit mask as the (x, y, z) booleans `Frame` uses."""
+    return (bool(bits & 1), bool(bits & 2), bool(bits & 4))
+
+
+def to_frames(batch: np.ndarray, protocol: str) -> list[Frame]:
+    """The `Frame`s ring records came from (enough of each to re-encode it; no compensated fields)."""
+    columns = zip(
+        batch["kind"].tolist(),
+        batch["message"].tolist(),
+        batch["seq"].tolist(),
+        batch["t_dev_s"].tolist(),
+        batch["rate_dph"].tolist(),
+        batch["axis_valid"].tolist(),
+        batch["axis_present"].tolist(),
+        batch["temp_c"].tolist(),
+        batch["has_temp"].tolist(),
+        batch["raw_len"].tolist(),
+    )
+    raw = batch["raw"].tobytes()
+    frames = []
+    for i, (kind, message, seq, t_s, rates, valid, present, temp, has_temp, length) in enumerate(columns):
+        name = KIND_NAMES[kind]
+        frames.append(
+            Frame(
+                protocol,
+                name,
+                message.decode("ascii"),
+                None if seq < 0 else seq,
+                None if t_s != t_s else t_s,  # NaN: no device time
+                tuple(rates) if name in ("imu", "rate") else None,
+                mask(valid),
+                mask(present),
+                temp if has_temp else None,
+                raw[i * RAW_SLOT_BYTES : i * RAW_SLOT_BYTES + length],
+            )
+        )
+    return frames
 
 
 class Ring:

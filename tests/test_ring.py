@@ -6,7 +6,7 @@ from hypothesis import strategies as st
 
 from fogd.protocols import get
 from fogd.protocols.base import ALL_AXES, Frame
-from fogd.ring import KIND_IMU, KIND_OTHER, KIND_TEMP, SAMPLE_DTYPE, Ring, pack_frames, raw_bytes
+from fogd.ring import KIND_IMU, KIND_OTHER, KIND_TEMP, SAMPLE_DTYPE, Ring, pack_frames, raw_bytes, to_frames
 
 COUNTER = np.dtype([("value", np.int64)])
 
@@ -84,3 +84,10 @@ def test_pack_frames_keeps_fields_and_raw_bytes():
     assert batch["temp_c"][1] == 30.5
     assert all(batch["t_rx_s"] == 12.0)
     assert [raw_bytes(record) for record in batch] == [imu.raw, temp.raw, other.raw]
+
+
+def test_to_frames_gives_back_what_reencoding_needs():
+    kvh = get("kvh-a")
+    frame = kvh.decode(kvh.encode(Frame("kvh-a", "imu", "A", 9, None, (1.0, 2.0, 3.0), ALL_AXES, ALL_AXES, 20.0)))
+    (back,) = to_frames(pack_frames([frame], 0.0), "kvh-a")
+    assert back == frame
