@@ -1,0 +1,360 @@
+"""Where compensated samples go and how they look: the output formats (`same`, `fogd`, `csv`, `jsonl`), the
+sinks (stdout, a file, a serial or pty device, a pty fogd creates and links like socat), and the writer thread
+that drains a bounded queue into the sink with a write timeout.
+
+The compensation loop hands the writer one encoded chunk per batch and never waits: when the queue is full
+the chunk's frames are dropped and counted, and a consumer that does not take bytes within the write timeout
+costs the frames not yet written, counted too. Memory is bounded by the queue length, whatever the consumer
+does.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import queue
+import select
+import stat
+import threading
+import time
+import tty
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import serial
+
+from fogd.cli.replay import OUTPUT_FORMATS
+from fogd.compensator import Compensated
+from fogd.errors import DeviceError, describe_os_error
+from fogd.protocols import Protocol
+from fogd.protocols.base import Frame
+from fogd.protocols.fogdbin import SEQ_MODULUS, FogdProtocol
+from fogd.ring import KIND_IMU, KIND_RATE, mask, to_frames
+from fogd.serialio import describe_open_error
+
+log = logging.getLogger("fogd.writer")
+
+OUT_FORMATS = ("same", "fogd", "csv", "jsonl")
+CSV_COLUMNS = tuple(OUTPUT_FORMATS)  # t_s,rate_dph,temp_c,temp_rate_cps,comp_dph,rate_comp_dph,flags
+CSV_ROW = ",".join(OUTPUT_FORMATS[name] for name in CSV_COLUMNS) + "\n"
+WRITE_TIMEOUT_S = 1.0
+QUEUE_CHUNKS = 64  # batches waiting for the sink; a batch is at most a ring's pop, so memory stays bounded
+PTY_PREFIX = "pty:"
+
+
+@dataclass
+class OutputBatch:
+    """One batch from the ring, compensated: `comp` and `t_s` have one row per entry of `rate_rows`."""
+
+    records: np.ndarray  # ring records (fogd.ring.SAMPLE_DTYPE), in arrival order
+    rate_rows: np.ndarray  # indices of the records that carry a rate
+    t_s: np.ndarray  # output time of each rate row
+    comp: Compensated  # the compensated axis, per rate row
+
+
+@dataclass
+class Chunk:
+    """Encoded output: the bytes and the end offset of each frame in them."""
+
+    data: bytes
+    frame_ends: list[int]
+
+
+class Formatter:
+    """Encodes compensated batches in one output format; `axis` is the compensated gyro axis (0..2)."""
+
+    def __init__(self, out_format: str, protocol: Protocol, axis: int) -> None:
+        if out_format not in OUT_FORMATS:
+            raise ValueError(f"unknown output format {out_format!r}")
+        self.out_format = out_format
+        self.protocol = protocol
+        self.axis = axis
+        self._fogd = FogdProtocol()
+        self._seq = 0
+
+    def header(self) -> bytes:
+        """What goes to the sink before any frame (the CSV header line)."""
+        return (",".join(CSV_COLUMNS) + "\n").encode() if self.out_format == "csv" else b""
+
+    def encode(self, batch: OutputBatch) -> Chunk:
+        pieces = getattr(self, f"_{self.out_format}")(batch)
+        ends, total = [], 0
+        for piece in pieces:
+            total += len(piece)
+            ends.append(total)
+        return Chunk(b"".join(pieces), ends)
+
+    def _same(self, batch: OutputBatch) -> list[bytes]:
+        """Every input frame, rate frames re-encoded with the compensated rate and a fresh CRC."""
+        frames = to_frames(batch.records, self.protocol.name)
+        compensated = dict(zip(batch.rate_rows.tolist(), batch.comp.rate_comp_dph.tolist()))
+        axis, reencode = self.axis, self.protocol.reencode
+        pieces = []
+        for index, frame in enumerate(frames):
+            rate_comp = compensated.get(index)
+            if rate_comp is None:
+                pieces.append(frame.raw)
+                continue
+            rates = list(frame.rate_dph)
+            rates[axis] = rate_comp
+            pieces.append(reencode(frame, rates))
+        return pieces
+
+    def _fogd(self, batch: OutputBatch) -> list[bytes]:
+        """One fogd compensated-output frame per rate sample."""
+        records = batch.records[batch.rate_rows]
+        comp = batch.comp
+        axis = self.axis
+        pieces = []
+        columns = zip(
+            batch.t_s.tolist(), records["rate_dph"].tolist(), records["axis_valid"].tolist(),
+            records["axis_present"].tolist(), comp.temp_c.tolist(), comp.temp_rate_cps.tolist(),
+            comp.comp_dph.tolist(), comp.rate_comp_dph.tolist(), comp.flags.tolist(),
+        )  # fmt: skip
+        for t_s, rates, valid, present, temp_c, temp_rate_cps, comp_dph, rate_comp_dph, flags in columns:
+            comps = [0.0, 0.0, 0.0]
+            comps[axis] = comp_dph
+            rates_comp = list(rates)
+            rates_comp[axis] = rate_comp_dph
+            frame = Frame(
+                "fogd", "comp", "comp", self._seq, max(t_s, 0.0), tuple(rates), mask(valid), mask(present),
+                temp_c, b"", temp_rate_cps, tuple(comps), tuple(rates_comp), flags,
+            )  # fmt: skip
+            pieces.append(self._fogd.encode(frame))
+            self._seq = (self._seq + 1) % SEQ_MODULUS
+        return pieces
+
+    def _rows(self, batch: OutputBatch):
+        comp = batch.comp
+        raw = batch.records["rate_dph"][batch.rate_rows, self.axis]
+        return zip(
+            batch.t_s.tolist(), raw.tolist(), comp.temp_c.tolist(), comp.temp_rate_cps.tolist(),
+            comp.comp_dph.tolist(), comp.rate_comp_dph.tolist(), comp.flags.tolist(),
+        )  # fmt: skip
+
+    def _csv(self, batch: OutputBatch) -> list[bytes]:
+        """fogd-replay's columns and number formats, one row per rate sample."""
+        return [(CSV_ROW % row).encode() for row in self._rows(batch)]
+
+    def _jsonl(self, batch: OutputBatch) -> list[bytes]:
+        """One JSON object per rate sample (null for NaN/Inf)."""
+        return [
+            (
+                f'{{"t_s":{_json(t_s)},"rate_dph":{_json(rate)},"temp_c":{_json(temp)},'
+                f'"temp_rate_cps":{_json(temp_rate)},"comp_dph":{_json(comp)},"rate_comp_dph":{_json(rate_comp)},'
+                f'"flags":{flags}}}\n'
+            ).encode()
+            for t_s, rate, temp, temp_rate, comp, rate_comp, flags in self._rows(batch)
+        ]
+
+
+def _json(value: float) -> str:
+    return repr(value) if math.isfinite(value) else "null"
+
+
+def rate_row_indices(records: np.ndarray) -> np.ndarray:
+    """Indices of the ring records that carry a gyro rate."""
+    kind = records["kind"]
+    return np.flatnonzero((kind == KIND_IMU) | (kind == KIND_RATE))
+
+
+class Sink:
+    """A byte destination with a file descriptor; `write` gives up after a timeout and says how far it got."""
+
+    def __init__(self, name: str, fd: int, *, blocking: bool, on_close=None) -> None:
+        self.name = name
+        self.fd = fd
+        self.blocking = blocking  # regular files: the disk, not a consumer, sets the pace
+        self._on_close = on_close
+
+    def write(self, data: bytes, timeout_s: float) -> int:
+        """Bytes of `data` written before `timeout_s` ran out (all of them unless the consumer is stuck)."""
+        view = memoryview(data)
+        done = 0
+        deadline = time.monotonic() + timeout_s
+        while done < len(data):
+            if not self.blocking:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    break
+                _, ready, _ = select.select([], [self.fd], [], remaining)
+                if not ready:
+                    break
+            try:
+                done += os.write(self.fd, view[done:])
+            except BlockingIOError:
+                continue
+        return done
+
+    def close(self) -> None:
+        if self._on_close is not None:
+            self._on_close()
+
+
+def open_sink(spec: str, baud: int) -> Sink:
+    """The sink `--out` names: '-' (stdout), 'pty:PATH' (a new pty linked at PATH), or a file or device path.
+    Raises DeviceError with one line when it cannot be opened."""
+    if spec == "-":
+        return _stdout_sink()
+    if spec.startswith(PTY_PREFIX):
+        return _pty_sink(spec[len(PTY_PREFIX) :])
+    try:
+        mode = os.stat(spec).st_mode
+    except FileNotFoundError:
+        mode = 0
+    except OSError as error:
+        raise DeviceError(f"cannot open output {describe_os_error(error)}") from None
+    if stat.S_ISCHR(mode):
+        return _device_sink(spec, baud)
+    try:
+        if stat.S_ISFIFO(mode):
+            return Sink(spec, os.open(spec, os.O_WRONLY | os.O_NONBLOCK), blocking=False)
+        fd = os.open(spec, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    except OSError as error:
+        raise DeviceError(f"cannot open output {describe_os_error(error)}") from None
+    return Sink(spec, fd, blocking=True, on_close=lambda: os.close(fd))
+
+
+def _stdout_sink() -> Sink:
+    if stat.S_ISREG(os.fstat(1).st_mode):
+        return Sink("stdout", 1, blocking=True)
+    # A pipe or terminal: a fresh open file description, so non-blocking mode does not leak to the shell.
+    try:
+        fd = os.open("/proc/self/fd/1", os.O_WRONLY | os.O_NONBLOCK | os.O_NOCTTY)
+    except OSError:
+        return Sink("stdout", 1, blocking=True)
+    return Sink("stdout", fd, blocking=False, on_close=lambda: os.close(fd))
+
+
+def _device_sink(path: str, baud: int) -> Sink:
+    """A serial port or someone else's pty (opened like the input port), or another character device such
+    as /dev/null; written without blocking."""
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_NOCTTY | os.O_NONBLOCK)
+    except OSError as error:
+        raise DeviceError(f"cannot open output {describe_os_error(error)}") from None
+    if not os.isatty(fd):
+        return Sink(path, fd, blocking=False, on_close=lambda: os.close(fd))
+    os.close(fd)
+    try:
+        port = serial.Serial(path, baud, write_timeout=0, exclusive=True)
+    except serial.SerialException as error:
+        raise DeviceError(f"cannot open output {describe_open_error(path, error)}") from None
+    except (OSError, ValueError) as error:
+        raise DeviceError(f"cannot open output {path}: {error}") from None
+    return Sink(path, port.fd, blocking=False, on_close=port.close)
+
+
+def _pty_sink(link: str) -> Sink:
+    """A new pty in raw mode with `link` pointing at its slave; fogd writes to the master."""
+    link_path = Path(link)
+    if link_path.exists() and not link_path.is_symlink():
+        raise DeviceError(f"cannot make pty link {link}: it exists and is not a symlink; remove it or choose another path")
+    master, slave = os.openpty()
+    try:
+        tty.setraw(slave)
+        os.set_blocking(master, False)
+        slave_name = os.ttyname(slave)
+        link_path.parent.mkdir(parents=True, exist_ok=True)
+        temporary = link_path.with_name(f".{link_path.name}.{os.getpid()}")
+        os.symlink(slave_name, temporary)
+        os.replace(temporary, link_path)
+    except OSError as error:
+        os.close(master)
+        os.close(slave)
+        raise DeviceError(f"cannot make pty link {link}: {describe_os_error(error)}") from None
+    log.info("output pty %s -> %s", link, slave_name)
+
+    def close() -> None:
+        try:
+            if os.readlink(link_path) == slave_name:
+                link_path.unlink()
+        except OSError:
+            pass
+        os.close(master)
+        os.close(slave)
+
+    # fogd keeps the slave open too, so a consumer that comes and goes never makes the master's writes fail.
+    return Sink(f"pty {link}", master, blocking=False, on_close=close)
+
+
+@dataclass
+class WriterCounters:
+    frames_written: int = 0
+    frames_dropped_full: int = 0  # queue full: the consumer is behind
+    frames_dropped_timeout: int = 0  # the consumer did not take bytes within the write timeout
+    frames_dropped_error: int = 0  # the sink reported an error
+
+
+class Writer:
+    """The writer thread: a bounded queue of encoded chunks drained into a sink with a write timeout."""
+
+    def __init__(self, sink: Sink, *, queue_chunks: int = QUEUE_CHUNKS, write_timeout_s: float = WRITE_TIMEOUT_S) -> None:
+        self.sink = sink
+        self.write_timeout_s = write_timeout_s
+        self.counters = WriterCounters()
+        self._queue: queue.Queue[Chunk | None] = queue.Queue(maxsize=queue_chunks)
+        self._thread = threading.Thread(target=self._run, name="fogd-writer", daemon=True)
+        self._error_logged = False
+        self.error: BaseException | None = None  # what killed the thread, if anything did
+
+    def start(self, header: bytes = b"") -> None:
+        if header:
+            self.sink.write(header, self.write_timeout_s)
+        self._thread.start()
+
+    @property
+    def alive(self) -> bool:
+        return self._thread.is_alive()
+
+    def submit(self, chunk: Chunk) -> None:
+        """Queue a chunk without waiting; a full queue drops it (counted)."""
+        if not chunk.frame_ends:
+            return
+        try:
+            self._queue.put_nowait(chunk)
+        except queue.Full:
+            self.counters.frames_dropped_full += len(chunk.frame_ends)
+
+    def close(self, timeout_s: float) -> bool:
+        """Write what is queued (within `timeout_s`), stop the thread and close the sink; False if it timed out."""
+        deadline = time.monotonic() + timeout_s
+        flushed = True
+        if self._thread.is_alive():
+            try:
+                self._queue.put(None, timeout=max(0.0, deadline - time.monotonic()))
+            except queue.Full:
+                flushed = False
+            self._thread.join(max(0.0, deadline - time.monotonic()))
+            flushed = flushed and not self._thread.is_alive()
+        if flushed:
+            self.sink.close()
+        return flushed
+
+    def _run(self) -> None:
+        try:
+            while True:
+                chunk = self._queue.get()
+                if chunk is None:
+                    return
+                self._write(chunk)
+        except BaseException as error:  # the daemon notices a dead writer through `alive` and `error`
+            self.error = error
+            raise
+
+    def _write(self, chunk: Chunk) -> None:
+        counters = self.counters
+        try:
+            written = self.sink.write(chunk.data, self.write_timeout_s)
+        except OSError as error:
+            if not self._error_logged:
+                log.warning("%s: write failed: %s; dropping output until it recovers", self.sink.name, describe_os_error(error))
+                self._error_logged = True
+            counters.frames_dropped_error += len(chunk.frame_ends)
+            return
+        self._error_logged = False
+        complete = int(np.searchsorted(chunk.frame_ends, written, side="right"))
+        counters.frames_written += complete
+        counters.frames_dropped_timeout += len(chunk.frame_ends) - complete

@@ -1,0 +1,134 @@
+"""The reader thread: it only reads the gyro's port, frames the bytes with the lexer and pushes the decoded
+samples into the ring. It never evaluates the model and never waits for the writer.
+
+Reads take `in_waiting or 1` bytes (pyserial's ReaderThread idiom): one byte blocks up to the port's read
+timeout, and whatever else has arrived comes in the same read. When the port disappears (a USB unplug:
+pyserial raises "device reports readiness to read but returned no data") the reader logs it once, drops the
+half-received frame, and reopens the same path with capped exponential backoff until it comes back, so a
+device that returns behind the same symlink is picked up too. The rate estimator's state is kept across
+the gap: the compensator treats the samples after the gap as following on from those before it.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+import serial
+
+from fogd.errors import DeviceError
+from fogd.lexer import Lexer
+from fogd.ring import KIND_NAMES, Ring, pack_frames
+
+log = logging.getLogger("fogd.reader")
+
+BACKOFF_FIRST_S = 0.05
+BACKOFF_MAX_S = 2.0
+
+
+@dataclass
+class ReaderCounters:
+    """What the reader did; the lexer's drop counters are kept by the lexer itself."""
+
+    bytes_in: int = 0
+    frames_in: dict[str, int] = field(default_factory=lambda: {name: 0 for name in KIND_NAMES.values()})
+    disconnects: int = 0
+    reconnects: int = 0
+
+
+class Reader:
+    """Reads `open_port()`'s port into `ring` on its own thread until `stop()`; survives the port going away."""
+
+    def __init__(self, open_port: Callable[[], serial.Serial], lexer: Lexer, ring: Ring, *, port: serial.Serial | None = None) -> None:
+        self._open_port = open_port
+        self.lexer = lexer
+        self.ring = ring
+        self.port = port
+        self.counters = ReaderCounters()
+        self.data_ready = threading.Event()  # set after each push, so the consumer need not poll
+        self.error: BaseException | None = None  # what killed the thread, if anything did
+        self._stopping = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> None:
+        """Start (or, after the thread died, restart) reading."""
+        self.error = None
+        self._thread = threading.Thread(target=self._run, name="fogd-reader", daemon=True)
+        self._thread.start()
+
+    @property
+    def alive(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def stop(self, timeout_s: float = 1.0) -> None:
+        """Ask the thread to finish its current read and stop; closes the port."""
+        self._stopping.set()
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+        self._close()
+
+    def _run(self) -> None:
+        try:
+            while not self._stopping.is_set():
+                if self.port is None and not self._reopen():
+                    return
+                try:
+                    data = self.port.read(self.port.in_waiting or 1)
+                except (serial.SerialException, OSError) as error:
+                    self._lost(error)
+                    continue
+                if data:
+                    self._frame(data, time.monotonic())
+        except BaseException as error:  # the daemon notices a dead reader through `alive` and `error`
+            self.error = error
+            raise
+
+    def _frame(self, data: bytes, t_rx_s: float) -> None:
+        self.counters.bytes_in += len(data)
+        frames = self.lexer.feed(data)
+        if not frames:
+            return
+        batch = pack_frames(frames, t_rx_s)
+        counts = np.bincount(batch["kind"], minlength=len(KIND_NAMES) + 1)
+        frames_in = self.counters.frames_in
+        for code, name in KIND_NAMES.items():
+            frames_in[name] += int(counts[code])
+        self.ring.push(batch)
+        self.data_ready.set()
+
+    def _lost(self, error: BaseException) -> None:
+        name = getattr(self.port, "port", "port")
+        log.warning("%s: port lost (%s); reopening with backoff", name, error)
+        self.counters.disconnects += 1
+        self.lexer.flush()
+        self._close()
+
+    def _reopen(self) -> bool:
+        """Open the port again, retrying with backoff; False if asked to stop first."""
+        delay_s = BACKOFF_FIRST_S
+        last_message = ""
+        while not self._stopping.wait(delay_s):
+            try:
+                self.port = self._open_port()
+            except DeviceError as error:
+                if str(error) != last_message:  # say each new reason once, not once per retry
+                    log.info("%s; retrying", error)
+                    last_message = str(error)
+                delay_s = min(2 * delay_s, BACKOFF_MAX_S)
+                continue
+            self.counters.reconnects += 1
+            log.warning("%s: port back; reading again", self.port.port)
+            return True
+        return False
+
+    def _close(self) -> None:
+        port, self.port = self.port, None
+        if port is not None:
+            try:
+                port.close()
+            except (serial.SerialException, OSError):
+                pass
