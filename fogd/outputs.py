@@ -71,7 +71,7 @@ class Formatter:
         self.out_format = out_format
         self.protocol = protocol
         self.axis = axis
-        self._fogd = FogdProtocol()
+        self._fogd_protocol = FogdProtocol()
         self._seq = 0
 
     def header(self) -> bytes:
@@ -122,7 +122,7 @@ class Formatter:
                 "fogd", "comp", "comp", self._seq, max(t_s, 0.0), tuple(rates), mask(valid), mask(present),
                 temp_c, b"", temp_rate_cps, tuple(comps), tuple(rates_comp), flags,
             )  # fmt: skip
-            pieces.append(self._fogd.encode(frame))
+            pieces.append(self._fogd_protocol.encode(frame))
             self._seq = (self._seq + 1) % SEQ_MODULUS
         return pieces
 

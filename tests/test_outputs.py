@@ -1,0 +1,184 @@
+"""Output formats round-trip through their own readers; sinks open (or fail in one line); the writer never
+blocks its caller and counts what a stuck consumer costs."""
+
+import io
+import json
+import os
+import struct
+import time
+
+import numpy as np
+import pytest
+
+from fogd.compensator import Compensator
+from fogd.errors import DeviceError
+from fogd.estimator import EstimatorSettings
+from fogd.frozen import FrozenModel, Linear
+from fogd.inputs import default_inputs
+from fogd.lexer import Lexer
+from fogd.outputs import CSV_COLUMNS, Chunk, Formatter, OutputBatch, Writer, open_sink, rate_row_indices
+from fogd.protocols import get
+from fogd.protocols.base import ALL_AXES, Frame
+from fogd.protocols.kvh import DPH_PER_RAD_S
+from fogd.ring import pack_frames
+
+RATE_HZ = 100.0
+Z = 2
+
+
+def model() -> FrozenModel:
+    return FrozenModel(
+        method="linear",
+        inputs=default_inputs(EstimatorSettings(window_s=0.2, average_s=0.05)),
+        x_mean=np.zeros(2),
+        x_scale=np.ones(2),
+        y_mean=0.0,
+        y_scale=1.0,
+        domain_min=np.array([-40.0, -1.0]),
+        domain_max=np.array([80.0, 1.0]),
+        evaluator=Linear(np.array([0.1, 10.0]), 0.25),
+    )
+
+
+def kvh_batch(n: int = 60) -> tuple[OutputBatch, list[Frame]]:
+    """n KVH Format A frames (all axes valid, z rate varies, temperature steps) compensated on z."""
+    kvh = get("kvh-a", comp_axes=(Z,))
+    frames = []
+    for i in range(n):
+        rates = (1.5 * DPH_PER_RAD_S * 1e-5, -2.0 * DPH_PER_RAD_S * 1e-5, (i % 7) * DPH_PER_RAD_S * 1e-6)
+        wire = Frame("kvh-a", "imu", "A", i % 128, None, rates, ALL_AXES, ALL_AXES, 20.0 + i // 20)
+        frames.append(kvh.decode(kvh.encode(wire)))
+    records = pack_frames(frames, t_rx_s=1.0)
+    rows = rate_row_indices(records)
+    comp = Compensator(model(), RATE_HZ).process(records["rate_dph"][rows, Z], records["temp_c"][rows])
+    return OutputBatch(records, rows, np.arange(rows.size) / RATE_HZ, comp), frames
+
+
+def test_csv_parses_to_replay_columns():
+    batch, frames = kvh_batch()
+    formatter = Formatter("csv", get("kvh-a"), Z)
+    text = (formatter.header() + formatter.encode(batch).data).decode()
+    header, *lines = text.splitlines()
+    assert tuple(header.split(",")) == CSV_COLUMNS
+    table = np.loadtxt(io.StringIO("\n".join(lines)), delimiter=",")
+    assert table.shape == (len(frames), len(CSV_COLUMNS))
+    assert np.allclose(table[:, 1], [frame.rate_dph[Z] for frame in frames], rtol=1e-8)
+    assert np.allclose(table[:, 2], [frame.temp_c for frame in frames])
+    assert np.allclose(table[:, 4], batch.comp.comp_dph, rtol=1e-8)
+    assert np.allclose(table[:, 5], batch.comp.rate_comp_dph, rtol=1e-8, atol=1e-12)
+    assert list(table[:, 6].astype(int)) == batch.comp.flags.tolist()
+
+
+def test_jsonl_is_one_object_per_sample():
+    batch, frames = kvh_batch()
+    chunk = Formatter("jsonl", get("kvh-a"), Z).encode(batch)
+    objects = [json.loads(line) for line in chunk.data.decode().splitlines()]
+    assert len(objects) == len(frames) == len(chunk.frame_ends)
+    assert [obj["rate_comp_dph"] for obj in objects] == batch.comp.rate_comp_dph.tolist()
+    assert [obj["flags"] for obj in objects] == batch.comp.flags.tolist()
+    assert set(objects[0]) == set(CSV_COLUMNS)
+
+
+def test_fogd_frames_decode_with_fogds_own_decoder():
+    batch, frames = kvh_batch()
+    chunk = Formatter("fogd", get("kvh-a"), Z).encode(batch)
+    decoded = Lexer(get("fogd")).feed(chunk.data)
+    assert len(decoded) == len(frames)
+    assert [frame.seq for frame in decoded] == list(range(len(frames)))
+    for out, raw, comp, rate_comp, temp in zip(
+        decoded, frames, batch.comp.comp_dph, batch.comp.rate_comp_dph, batch.comp.temp_c
+    ):
+        assert out.kind == "comp"
+        assert out.rate_dph == pytest.approx(raw.rate_dph, rel=1e-6)
+        assert out.comp_dph[Z] == pytest.approx(comp, rel=1e-6) and out.comp_dph[:2] == (0.0, 0.0)
+        assert out.rate_comp_dph[Z] == pytest.approx(rate_comp, rel=1e-6, abs=1e-6)
+        assert out.rate_comp_dph[:2] == pytest.approx(raw.rate_dph[:2], rel=1e-6)
+        assert out.temp_c == temp
+
+
+def test_same_reencodes_kvh_with_compensated_z_and_untouched_x_y():
+    batch, frames = kvh_batch()
+    chunk = Formatter("same", get("kvh-a", comp_axes=(Z,)), Z).encode(batch)
+    assert len(chunk.data) == 36 * len(frames)
+    lexer = Lexer(get("kvh-a"))
+    decoded = lexer.feed(chunk.data)
+    assert lexer.counters.bad_crc == 0 and len(decoded) == len(frames)
+    for out, raw, rate_comp in zip(decoded, frames, batch.comp.rate_comp_dph):
+        assert out.raw[4:12] == raw.raw[4:12]  # x and y gyro words, byte for byte
+        assert out.raw[16:32] == raw.raw[16:32]  # accels, status, sequence, temperature
+        wire_z = struct.unpack(">f", struct.pack(">f", rate_comp / DPH_PER_RAD_S))[0] * DPH_PER_RAD_S
+        assert out.rate_dph[Z] == wire_z
+    assert any(out.raw != raw.raw for out, raw in zip(decoded, frames))
+
+
+def test_same_passes_frames_without_a_rate_through():
+    fogd = get("fogd", comp_axes=(Z,))
+    temp = fogd.decode(fogd.encode(Frame("fogd", "temp", "temp", 1, 0.5, temp_c=25.0)))
+    rate = fogd.decode(fogd.encode(Frame("fogd", "rate", "rate", 1, 0.5, (0.0, 0.0, 3.0), ALL_AXES, ALL_AXES)))
+    records = pack_frames([temp, rate], 0.0)
+    rows = rate_row_indices(records)
+    comp = Compensator(model(), RATE_HZ).process(np.array([3.0]), np.array([25.0]))
+    chunk = Formatter("same", fogd, Z).encode(OutputBatch(records, rows, np.zeros(1), comp))
+    out = Lexer(fogd).feed(chunk.data)
+    assert out[0].raw == temp.raw
+    assert out[1].rate_dph[Z] == pytest.approx(comp.rate_comp_dph[0], rel=1e-6)
+    assert len(chunk.frame_ends) == 2
+
+
+def test_pty_sink_links_a_pty_a_reader_can_open(tmp_path):
+    link = tmp_path / "run" / "fog0"
+    sink = open_sink(f"pty:{link}", 921600)
+    try:
+        assert link.is_symlink()
+        reader = os.open(link, os.O_RDONLY | os.O_NOCTTY | os.O_NONBLOCK)
+        try:
+            assert sink.write(b"hello fog\n", 1.0) == 10
+            time.sleep(0.05)
+            assert os.read(reader, 100) == b"hello fog\n"
+        finally:
+            os.close(reader)
+    finally:
+        sink.close()
+    assert not link.exists()
+
+
+def test_pty_sink_refuses_to_replace_a_real_file(tmp_path):
+    target = tmp_path / "fog0"
+    target.write_text("keep me")
+    with pytest.raises(DeviceError, match="not a symlink"):
+        open_sink(f"pty:{target}", 921600)
+    assert target.read_text() == "keep me"
+
+
+@pytest.mark.parametrize("where", ["directory", "missing-parent"])
+def test_unopenable_output_is_a_one_line_device_error(tmp_path, where):
+    path = tmp_path if where == "directory" else tmp_path / "no" / "such" / "dir" / "out.csv"
+    with pytest.raises(DeviceError) as error:
+        open_sink(str(path), 921600)
+    assert "\n" not in str(error.value) and str(path) in str(error.value)
+
+
+def test_file_sink_writes_everything(tmp_path):
+    path = tmp_path / "out.bin"
+    writer = Writer(open_sink(str(path), 921600))
+    writer.start(b"head\n")
+    for i in range(10):
+        writer.submit(Chunk(b"x" * 100, [50, 100]))
+    assert writer.close(2.0)
+    assert path.read_bytes() == b"head\n" + b"x" * 1000
+    assert writer.counters.frames_written == 20
+
+
+def test_stuck_consumer_is_counted_and_never_blocks_the_caller(tmp_path):
+    sink = open_sink(f"pty:{tmp_path / 'nobody-reads'}", 921600)
+    writer = Writer(sink, queue_chunks=4, write_timeout_s=0.05)
+    writer.start()
+    started = time.monotonic()
+    for _ in range(200):
+        writer.submit(Chunk(b"\x55" * 36_000, list(range(36, 36_001, 36))))
+    assert time.monotonic() - started < 0.5
+    writer.close(1.0)
+    counters = writer.counters
+    assert counters.frames_dropped_full > 0 and counters.frames_dropped_timeout > 0
+    total = counters.frames_written + counters.frames_dropped_full + counters.frames_dropped_timeout
+    assert total == 200 * 1000
