@@ -34,6 +34,42 @@ FLUSH_TIMEOUT_S = 1.5
 RESTART_DELAY_S = 0.5
 
 
+class TemperatureHold:
+    """Each record's temperature: the newest one that arrived at or before it, carried across batches, and
+    its age in receive time (a rate sample with no temperature since the start ages from the start)."""
+
+    def __init__(self) -> None:
+        self.temp_c = np.nan
+        self.rx_s = time.monotonic()
+
+    def hold(self, records: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(temperature held for each record, seconds since it arrived)."""
+        has_temp = records["has_temp"]
+        source = np.where(has_temp, np.arange(has_temp.size), -1)
+        np.maximum.accumulate(source, out=source)
+        known = source >= 0
+        index = np.maximum(source, 0)
+        temp_c = np.where(known, records["temp_c"][index], self.temp_c)
+        rx_s = np.where(known, records["t_rx_s"][index], self.rx_s)
+        if has_temp.any():
+            self.temp_c = float(temp_c[-1])
+            self.rx_s = float(rx_s[-1])
+        return temp_c, records["t_rx_s"] - rx_s
+
+
+class SampleClock:
+    """Sample times: the device's clock where the protocol has one, else the sample count / rate_hz."""
+
+    def __init__(self, rate_hz: float) -> None:
+        self.rate_hz = rate_hz
+        self.count = 0
+
+    def times(self, device_s: np.ndarray) -> np.ndarray:
+        count_s = (self.count + np.arange(device_s.size)) / self.rate_hz
+        self.count += device_s.size
+        return np.where(np.isnan(device_s), count_s, device_s)
+
+
 @dataclass
 class LoopCounters:
     samples_compensated: int = 0
@@ -74,7 +110,6 @@ class Daemon:
         self.formatter = formatter
         self.model = model
         self.compensator = Compensator(model, rate_hz)
-        self.rate_hz = rate_hz
         self.axis = axis
         self.temp_stale_s = temp_stale_s
         self.status_interval_s = status_interval_s
@@ -82,9 +117,8 @@ class Daemon:
         self.counters = LoopCounters()
         self.latest = Latest()
         self._stop = threading.Event()
-        self._samples = 0
-        self._held_temp_c = np.nan
-        self._held_temp_rx_s = time.monotonic()  # a rate with no temperature for temp_stale_s is stale too
+        self.clock = SampleClock(rate_hz)
+        self.temperature = TemperatureHold()
 
     @property
     def ring(self) -> Ring:
@@ -128,16 +162,13 @@ class Daemon:
     def compensate(self, records: np.ndarray) -> OutputBatch:
         """One Compensator.process call for every rate sample in `records`."""
         rows = rate_row_indices(records)
-        temp_c, temp_age_s = self._held_temperatures(records)
+        temp_c, temp_age_s = self.temperature.hold(records)
         rates = records["rate_dph"][rows, self.axis]
         bit = 1 << self.axis
         usable = (records["axis_valid"][rows] & records["axis_present"][rows] & bit) != 0
         comp = self.compensator.process(
             rates, temp_c[rows], rate_valid=usable, temp_stale=temp_age_s[rows] > self.temp_stale_s
         )
-        device_s = records["t_dev_s"][rows]
-        count_s = (self._samples + np.arange(rows.size)) / self.rate_hz
-        self._samples += rows.size
         self.counters.samples_compensated += rows.size
         if rows.size:
             last = -1
@@ -145,21 +176,7 @@ class Daemon:
                 float(rates[last]), float(comp.comp_dph[last]), float(comp.rate_comp_dph[last]),
                 float(comp.temp_c[last]), float(comp.temp_rate_cps[last]), int(comp.flags[last]),
             )  # fmt: skip
-        return OutputBatch(records, rows, np.where(np.isnan(device_s), count_s, device_s), comp)
-
-    def _held_temperatures(self, records: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Per record: the newest temperature at or before it, and how long ago (receive time) it arrived."""
-        has_temp = records["has_temp"]
-        source = np.where(has_temp, np.arange(has_temp.size), -1)
-        np.maximum.accumulate(source, out=source)
-        known = source >= 0
-        index = np.maximum(source, 0)
-        temp_c = np.where(known, records["temp_c"][index], self._held_temp_c)
-        temp_rx_s = np.where(known, records["t_rx_s"][index], self._held_temp_rx_s)
-        if has_temp.any():
-            self._held_temp_c = float(temp_c[-1])
-            self._held_temp_rx_s = float(temp_rx_s[-1])
-        return temp_c, records["t_rx_s"] - temp_rx_s
+        return OutputBatch(records, rows, self.clock.times(records["t_dev_s"][rows]), comp)
 
     def _watch_threads(self) -> None:
         """A dead thread is a bug; log it, count it and start it again rather than hang silently."""

@@ -1,0 +1,165 @@
+"""`fogd-record`: record a run (CSV t_s,rate_dph,temp_c, what fogd-train reads) from a FOG's serial port.
+
+It runs the daemon's reader thread (same lexer, same reconnect after an unplug) and writes one row per rate
+sample of the chosen axis with the temperature held per frame; rate samples before the first temperature
+are skipped. Time is the device's clock where the protocol has one, else the sample count / --rate-hz. A
+live status line shows frames, temperature, temperature rate (eq. 16 with the default window) and drops;
+the file is flushed every second, and SIGINT/SIGTERM stop cleanly.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+import time
+from typing import IO, Sequence
+
+import numpy as np
+
+from fogd import protocols
+from fogd.cli.common import ArgumentParser, positive_float, positive_int, run
+from fogd.daemon import RING_CAPACITY, SampleClock, TemperatureHold
+from fogd.errors import DeviceError, describe_os_error
+from fogd.estimator import EstimatorSettings, TempRateEstimator
+from fogd.lexer import Lexer
+from fogd.outputs import rate_row_indices
+from fogd.reader import Reader
+from fogd.ring import Ring
+from fogd.runio import RUN_COLUMNS
+from fogd.serialio import open_port
+
+PROG = "fogd-record"
+AXES = ("x", "y", "z")
+FLUSH_INTERVAL_S = 1.0
+LIVE_INTERVAL_S = 0.5
+IDLE_WAIT_S = 0.1
+
+log = logging.getLogger("fogd.record")
+
+
+def parser() -> ArgumentParser:
+    p = ArgumentParser(
+        prog=PROG,
+        description="Record a FOG run from a serial port as CSV t_s,rate_dph,temp_c (the input of fogd-train). "
+        "Bad frames are counted and dropped; an unplugged port is reopened and recording continues. "
+        "Stop with Ctrl-C or SIGTERM.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    p.add_argument("--port", required=True, metavar="PATH", help="serial port the FOG is on")
+    p.add_argument("--protocol", default="kvh-a", choices=protocols.names(), help="wire protocol of the port")
+    p.add_argument("--baud", type=positive_int, default=921600, help="baud rate")
+    p.add_argument("-o", "--output", required=True, metavar="RUN.csv", help="CSV file to write (replaced)")
+    p.add_argument("--rate-hz", type=positive_float, default=1000.0,
+                   help="FOG sample rate in Hz: the time step where the protocol has no timestamp")  # fmt: skip
+    p.add_argument("--axis", default="z", choices=AXES, help="gyro axis to record")
+    p.add_argument("--duration-s", type=positive_float, default=None, help="stop after this many seconds")
+    p.add_argument("--status-interval-s", type=positive_float, default=10.0,
+                   help="seconds between status lines when stderr is not a terminal (a terminal gets a live line)")  # fmt: skip
+    p.add_argument("-q", "--quiet", action="store_true", help="no status line")
+    return p
+
+
+class Recorder:
+    """Turns batches of ring records into CSV rows and keeps what the status line shows."""
+
+    def __init__(self, stream: IO[str], axis: int, rate_hz: float) -> None:
+        self.stream = stream
+        self.axis = axis
+        self.temperature = TemperatureHold()
+        self.clock = SampleClock(rate_hz)
+        self.temp_rate = TempRateEstimator(EstimatorSettings(), rate_hz)
+        self.rows = 0
+        self.skipped_no_temp = 0
+        self.temp_c = float("nan")
+        self.temp_rate_cps = float("nan")
+
+    def write(self, records: np.ndarray) -> None:
+        rows = rate_row_indices(records)
+        temp_c = self.temperature.hold(records)[0][rows]
+        t_s = self.clock.times(records["t_dev_s"][rows])
+        rate_dph = records["rate_dph"][rows, self.axis]
+        known = ~np.isnan(temp_c)
+        self.skipped_no_temp += int((~known).sum())
+        if not known.any():
+            return
+        t_s, rate_dph, temp_c = t_s[known], rate_dph[known], temp_c[known]
+        # repr keeps every value exactly as decoded, so a replay of this file sees what the wire carried
+        self.stream.write("".join(f"{t:.6f},{r!r},{c!r}\n" for t, r, c in zip(t_s.tolist(), rate_dph.tolist(), temp_c.tolist())))
+        self.rows += temp_c.size
+        finite = temp_c[np.isfinite(temp_c)]
+        if finite.size:
+            self.temp_rate_cps = float(self.temp_rate.update(finite)[-1])
+            self.temp_c = float(finite[-1])
+
+
+def status_line(recorder: Recorder, reader: Reader, ring: Ring) -> str:
+    lexer = reader.lexer.counters
+    drops = lexer.bad_crc + lexer.truncated + lexer.bad_line + ring.overruns
+    return (
+        f"rows {recorder.rows}  frames {lexer.frames_ok}  T {recorder.temp_c:.2f} C  "
+        f"dT/dt {recorder.temp_rate_cps:+.5f} C/s  drops {drops} (crc {lexer.bad_crc}, truncated {lexer.truncated}, "
+        f"lines {lexer.bad_line}, overruns {ring.overruns})  missing {lexer.frames_missing}  "
+        f"reconnects {reader.counters.reconnects}"
+    )
+
+
+def body(argv: Sequence[str] | None) -> int:
+    args = parser().parse_args(argv)
+    logging.basicConfig(stream=sys.stderr, level=logging.WARNING if args.quiet else logging.INFO, format="%(name)s: %(message)s")
+    axis = AXES.index(args.axis)
+    protocol = protocols.get(args.protocol)
+    port = open_port(args.port, args.baud)
+    try:
+        stream = open(args.output, "w", encoding="utf-8", newline="\n")
+    except OSError as error:
+        port.close()
+        raise DeviceError(f"cannot write {describe_os_error(error)}") from None
+    ring = Ring(RING_CAPACITY)
+    reader = Reader(lambda: open_port(args.port, args.baud), Lexer(protocol), ring, port=port)
+    recorder = Recorder(stream, axis, args.rate_hz)
+    stop = threading.Event()
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(signum, lambda *_: stop.set())
+    live = sys.stderr.isatty() and not args.quiet
+    status_every_s = LIVE_INTERVAL_S if live else args.status_interval_s
+    stream.write(",".join(RUN_COLUMNS) + "\n")
+    started_s = time.monotonic()
+    next_flush_s = next_status_s = started_s + min(FLUSH_INTERVAL_S, status_every_s)
+    reader.start()
+    try:
+        while not stop.is_set():
+            now_s = time.monotonic()
+            if args.duration_s is not None and now_s - started_s >= args.duration_s:
+                break
+            if not reader.alive:
+                log.error("reader thread died (%r); restarting it", reader.error)
+                reader.start()
+            reader.data_ready.wait(IDLE_WAIT_S)
+            reader.data_ready.clear()
+            recorder.write(ring.pop())
+            if now_s >= next_flush_s:
+                stream.flush()
+                next_flush_s = now_s + FLUSH_INTERVAL_S
+            if now_s >= next_status_s and not args.quiet:
+                line = status_line(recorder, reader, ring)
+                print(f"\r{line}\x1b[K" if live else line, end="" if live else "\n", file=sys.stderr, flush=True)
+                next_status_s = now_s + status_every_s
+    finally:
+        reader.stop()
+        recorder.write(ring.pop())
+        stream.close()
+    if live:
+        print(file=sys.stderr)
+    log.info("%s: %s", args.output, status_line(recorder, reader, ring))
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    return run(PROG, body, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
