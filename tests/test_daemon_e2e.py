@@ -1,0 +1,327 @@
+"""The real `fogd` process on real ptys: what it writes equals `fogd-replay` on the same samples, frame by
+frame, for every protocol; corrupted frames are counted and dropped with no valid frame lost; SIGTERM exits 0
+with the output flushed; bad input gives one line and a non-zero exit, never a traceback."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import tty
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fogd import modelfile
+from fogd.cli import replay
+from fogd.estimator import EstimatorSettings
+from fogd.inputs import default_inputs
+from fogd.lexer import Lexer
+from fogd.protocols import get
+from fogd.protocols.base import ALL_AXES, Z_ONLY, Frame
+from fogd.protocols.kvh import DPH_PER_RAD_S
+from fogd.runio import RUN_COLUMNS
+
+RATE_HZ = 1000.0
+SAMPLES = 3000
+FOGD = [sys.executable, "-m", "fogd.cli.daemon"]
+OUT_COLUMNS = ("t_s", "rate_dph", "temp_c", "temp_rate_cps", "comp_dph", "rate_comp_dph", "flags")
+
+
+@pytest.fixture(scope="module")
+def model_path(tmp_path_factory) -> Path:
+    """comp = 0.5 + 0.05 T + 30 dT/dt deg/h, with a 0.5 s eq. 16 window so a short run warms up."""
+    path = tmp_path_factory.mktemp("model") / "model.json"
+    doc = modelfile.document(
+        name="e2e-linear", method="linear", inputs=default_inputs(EstimatorSettings(window_s=0.5, average_s=0.05)),
+        x_mean=np.zeros(2), x_scale=np.ones(2), y_mean=0.0, y_scale=1.0,
+        domain_min=np.array([-40.0, -5.0]), domain_max=np.array([80.0, 5.0]),
+        params={"coef": [0.05, 30.0], "intercept": 0.5}, reference_dph=0.0, training={}, metrics={},
+        created_utc="2024-01-01T00:00:00Z",
+    )  # fmt: skip
+    modelfile.save(path, doc)
+    return path
+
+
+class Pty:
+    """A pty standing in for the gyro's serial port: the test writes the master, fogd opens the slave."""
+
+    def __init__(self) -> None:
+        self.master, slave = os.openpty()
+        tty.setraw(slave)
+        self.path = os.ttyname(slave)
+        os.close(slave)
+
+    def write(self, data: bytes, piece: int = 4096) -> None:
+        for start in range(0, len(data), piece):
+            os.write(self.master, data[start : start + piece])
+
+    def close(self) -> None:
+        os.close(self.master)
+
+
+@pytest.fixture
+def gyro():
+    port = Pty()
+    yield port
+    port.close()
+
+
+class Fogd:
+    """The real daemon in a subprocess, its stderr in a file."""
+
+    def __init__(self, tmp_path: Path, *args: str) -> None:
+        self.stderr_path = tmp_path / "fogd.stderr"
+        with open(self.stderr_path, "wb") as stderr:
+            self.process = subprocess.Popen([*FOGD, *args], stdout=subprocess.DEVNULL, stderr=stderr)
+
+    @property
+    def stderr(self) -> str:
+        return self.stderr_path.read_text()
+
+    def wait_for(self, text: str, timeout_s: float = 10.0) -> None:
+        deadline = time.monotonic() + timeout_s
+        while text not in self.stderr:
+            assert self.process.poll() is None, f"fogd exited early: {self.stderr}"
+            assert time.monotonic() < deadline, f"fogd never said {text!r}: {self.stderr}"
+            time.sleep(0.02)
+
+    def terminate(self, timeout_s: float = 2.0) -> tuple[int, float]:
+        started = time.monotonic()
+        self.process.send_signal(signal.SIGTERM)
+        status = self.process.wait(timeout_s)
+        return status, time.monotonic() - started
+
+    def counters(self) -> dict:
+        line = next(line for line in self.stderr.splitlines() if line.startswith("fogd.status: counters "))
+        return json.loads(line.split("counters ", 1)[1])
+
+    def kill(self) -> None:
+        if self.process.poll() is None:
+            self.process.kill()
+            self.process.wait()
+
+
+def start_fogd(tmp_path: Path, port: str, model: Path, *args: str) -> Fogd:
+    fogd = Fogd(tmp_path, "--port", port, "--model", str(model), "--rate-hz", str(RATE_HZ), "--status-interval-s", "60", *args)
+    fogd.wait_for("fogd.daemon: reading")
+    return fogd
+
+
+def wait_for_rows(path: Path, rows: int, timeout_s: float = 15.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    newline = b"\n"
+    while not path.exists() or path.read_bytes().count(newline) < rows:
+        assert time.monotonic() < deadline, f"{path}: fewer than {rows} rows after {timeout_s} s"
+        time.sleep(0.05)
+
+
+def run_samples(protocol: str, seed: int = 3) -> dict[str, np.ndarray]:
+    """A run whose values survive the `protocol`'s wire exactly: float32 rates in its units, whole-degree
+    temperatures that change only on every 4th sample (where fogd frames carry one)."""
+    rng = np.random.default_rng(seed)
+    rate = rng.normal(0.0, 2e-5, SAMPLES).astype(np.float32).astype(np.float64)
+    rate_dph = rate * DPH_PER_RAD_S if protocol == "kvh-a" else (rate * DPH_PER_RAD_S).astype(np.float32).astype(np.float64)
+    temp_c = np.round(20.0 + (np.arange(SAMPLES) // 4 * 4) * 2e-3)  # a 2 C/s ramp in whole degrees
+    return {"t_s": np.arange(SAMPLES) / RATE_HZ, "rate_dph": rate_dph, "temp_c": temp_c}
+
+
+def wire_frames(protocol: str, samples: dict[str, np.ndarray]) -> list[bytes]:
+    """The frames a gyro of `protocol` sends for these samples (fogd: a temperature frame every 4th sample)."""
+    codec = get(protocol)
+    frames = []
+    for i, (t_s, rate, temp) in enumerate(zip(samples["t_s"].tolist(), samples["rate_dph"].tolist(), samples["temp_c"].tolist())):
+        if protocol == "kvh-a":
+            frames.append(codec.encode(Frame("kvh-a", "imu", "A", i % 128, None, (1.0, -1.0, rate), ALL_AXES, ALL_AXES, temp)))
+        elif protocol == "fogd":
+            if i % 4 == 0:
+                frames.append(codec.encode(Frame("fogd", "temp", "temp", i // 4, t_s, temp_c=temp)))
+            frames.append(codec.encode(Frame("fogd", "rate", "rate", i, t_s, (1.0, -1.0, rate), ALL_AXES, ALL_AXES)))
+        else:
+            frames.append(codec.encode(Frame("ascii", "imu", "I", None, t_s, (np.nan, np.nan, rate), Z_ONLY, Z_ONLY, temp)))
+    return frames
+
+
+def write_run(path: Path, samples: dict[str, np.ndarray]) -> None:
+    lines = [",".join(RUN_COLUMNS)]
+    lines += [f"{t:.6f},{r!r},{c!r}" for t, r, c in zip(*(samples[name].tolist() for name in RUN_COLUMNS))]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def replayed(tmp_path: Path, model: Path, samples: dict[str, np.ndarray]) -> np.ndarray:
+    """fogd-replay's compensated CSV for these samples, as an array of OUT_COLUMNS."""
+    run_path, out_path = tmp_path / "run.csv", tmp_path / "replay.csv"
+    write_run(run_path, samples)
+    assert replay.main([str(model), str(run_path), "-o", str(out_path)]) == 0
+    return np.loadtxt(out_path, delimiter=",", skiprows=1, ndmin=2)
+
+
+def assert_same_as_replay(output: np.ndarray, expected: np.ndarray) -> None:
+    assert output.shape == expected.shape
+    np.testing.assert_allclose(output[:, :6], expected[:, :6], rtol=1e-9, atol=1e-12)
+    assert output[:, 6].tolist() == expected[:, 6].tolist()  # flags
+
+
+@pytest.mark.parametrize("protocol", ["kvh-a", "fogd", "ascii"])
+def test_csv_output_equals_replay_frame_by_frame(tmp_path, gyro, model_path, protocol):
+    samples = run_samples(protocol)
+    out = tmp_path / "out.csv"
+    fogd = start_fogd(tmp_path, gyro.path, model_path, "--protocol", protocol, "--out-format", "csv", "--out", str(out))
+    try:
+        gyro.write(b"".join(wire_frames(protocol, samples)))
+        wait_for_rows(out, SAMPLES + 1)
+        status, took_s = fogd.terminate()
+    finally:
+        fogd.kill()
+    assert status == 0 and took_s < 2.0, fogd.stderr
+    assert out.read_text().splitlines()[0] == ",".join(OUT_COLUMNS)
+    assert_same_as_replay(np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2), replayed(tmp_path, model_path, samples))
+    counters = fogd.counters()
+    assert counters["writer"]["frames_written"] == SAMPLES
+    assert counters["lexer"]["bad_crc"] == counters["lexer"]["truncated"] == counters["lexer"]["bad_line"] == 0
+
+
+def test_same_output_is_kvh_with_compensated_z(tmp_path, gyro, model_path):
+    samples = run_samples("kvh-a")
+    frames = wire_frames("kvh-a", samples)
+    out = tmp_path / "out.bin"
+    fogd = start_fogd(tmp_path, gyro.path, model_path, "--out", str(out))
+    try:
+        gyro.write(b"".join(frames))
+        deadline = time.monotonic() + 15
+        while not out.exists() or out.stat().st_size < 36 * SAMPLES:
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        assert fogd.terminate()[0] == 0
+    finally:
+        fogd.kill()
+    lexer = Lexer(get("kvh-a"))
+    decoded = lexer.feed(out.read_bytes())
+    assert len(decoded) == SAMPLES and lexer.counters.bad_crc == 0 and lexer.counters.seq_gaps == 0
+    expected = replayed(tmp_path, model_path, samples)
+    rate_z = np.array([frame.rate_dph[2] for frame in decoded])
+    np.testing.assert_allclose(rate_z, expected[:, 5], rtol=2**-23, atol=1e-9)  # float32 on the wire
+    assert all(out_frame.raw[4:12] == in_frame[4:12] and out_frame.raw[16:32] == in_frame[16:32]
+               for out_frame, in_frame in zip(decoded, frames))  # fmt: skip
+
+
+def test_corrupted_frames_are_counted_and_no_valid_frame_is_lost(tmp_path, gyro, model_path):
+    samples = run_samples("kvh-a", seed=5)
+    frames = wire_frames("kvh-a", samples)
+    rng = np.random.default_rng(11)
+    stream, valid, flipped = [], [], 0
+    for i, frame in enumerate(frames):
+        fault = rng.integers(0, 10)
+        if fault == 0:  # garbage before the frame, including a false header
+            stream.append(b"\xfe\x81\xff" + bytes(rng.integers(0, 256, 20, dtype=np.uint8)))
+        if fault == 1:  # a bit flip: the CRC must catch it
+            damaged = bytearray(frame)
+            damaged[int(rng.integers(4, 36))] ^= 1 << int(rng.integers(0, 8))
+            stream.append(bytes(damaged))
+            flipped += 1
+            continue
+        if fault == 2:  # dropped on the way
+            continue
+        stream.append(frame)
+        valid.append(i)
+    out = tmp_path / "out.csv"
+    fogd = start_fogd(tmp_path, gyro.path, model_path, "--out-format", "csv", "--out", str(out))
+    try:
+        data = b"".join(stream)
+        cuts = np.cumsum(rng.integers(1, 200, len(data) // 50))  # split reads: frames cut across writes
+        for start, stop in zip([0, *cuts.tolist()], [*cuts.tolist(), len(data)]):
+            gyro.write(data[start:stop])
+        wait_for_rows(out, len(valid) + 1)
+        assert fogd.terminate()[0] == 0
+    finally:
+        fogd.kill()
+    output = np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2)
+    kept = {name: values[valid] for name, values in samples.items()}
+    kept["t_s"] = np.arange(len(valid)) / RATE_HZ  # fogd numbers the samples it receives
+    assert_same_as_replay(output, replayed(tmp_path, model_path, kept))
+    lexer = fogd.counters()["lexer"]
+    assert lexer["frames_ok"] == len(valid)
+    assert lexer["bad_crc"] + lexer["truncated"] >= flipped
+
+
+def test_sigterm_while_streaming_exits_zero_with_whole_rows_flushed(tmp_path, gyro, model_path):
+    out = tmp_path / "out.csv"
+    fogd = start_fogd(tmp_path, gyro.path, model_path, "--out-format", "csv", "--out", str(out))
+    try:
+        gyro.write(b"".join(wire_frames("kvh-a", run_samples("kvh-a"))))
+        wait_for_rows(out, 100)
+        status, took_s = fogd.terminate()
+    finally:
+        fogd.kill()
+    assert status == 0 and took_s < 2.0
+    text = out.read_text()
+    assert text.endswith("\n")
+    assert text.count("\n") - 1 == fogd.counters()["writer"]["frames_written"]
+
+
+def one_line_failure(tmp_path: Path, *args: str) -> tuple[int, str]:
+    result = subprocess.run([*FOGD, *args], capture_output=True, text=True, timeout=20, cwd=tmp_path)
+    assert "Traceback" not in result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("fogd: "), result.stderr
+    return result.returncode, lines[0]
+
+
+def test_bad_input_gives_one_line_and_the_right_exit_status(tmp_path, gyro, model_path):
+    model = str(model_path)
+    bad_model = tmp_path / "bad-model.json"
+    bad_model.write_text('{"format": "fogd-model", "version": 1}')
+    cases = [
+        (["--port", gyro.path, "--model", model, "--protocol", "nmea"], 2, "nmea"),
+        (["--port", str(tmp_path / "ttyNONE"), "--model", model], 74, "no such port"),
+        (["--port", gyro.path, "--model", model, "--out", str(tmp_path / "no" / "dir" / "out")], 74, "cannot open output"),
+        (["--port", gyro.path, "--model", str(bad_model)], 65, "bad-model.json"),
+        (["--port", gyro.path, "--model", str(tmp_path / "missing.json")], 65, "missing.json"),
+    ]
+    for args, status, text in cases:
+        got_status, line = one_line_failure(tmp_path, *args)
+        assert (got_status, text in line) == (status, True), line
+
+
+@pytest.mark.parametrize(
+    "config, text",
+    [
+        ("out_fromat: csv\n", "unknown key 'out_fromat'"),
+        ("rate_hz: fast\n", "'rate_hz' must be a number"),
+        ("rate_hz: -5\n", "'rate_hz'"),
+        ("out_format: xml\n", "'out_format' is 'xml'"),
+        ("protocol: [kvh-a]\n", "'protocol' must be a string"),
+        ("port: /dev/x\n  bad: indent\n", "not valid YAML"),
+    ],
+)
+def test_broken_config_is_exit_78_in_one_line(tmp_path, model_path, config, text):
+    path = tmp_path / "fogd.yaml"
+    path.write_text(config)
+    status, line = one_line_failure(tmp_path, "--config", str(path), "--model", str(model_path))
+    assert status == 78 and text in line, line
+
+
+def test_busy_port_is_refused_while_another_fogd_holds_it(tmp_path, gyro, model_path):
+    first = start_fogd(tmp_path, gyro.path, model_path, "--out", os.devnull)
+    try:
+        status, line = one_line_failure(tmp_path, "--port", gyro.path, "--model", str(model_path))
+        assert status == 74 and "busy" in line
+    finally:
+        assert first.terminate()[0] == 0
+
+
+def test_command_line_wins_over_config(tmp_path, gyro, model_path):
+    path = tmp_path / "fogd.yaml"
+    path.write_text(f"port: {gyro.path}\nout_format: jsonl\nout: {tmp_path / 'from-config.out'}\n")
+    out = tmp_path / "out.csv"
+    fogd = start_fogd(tmp_path, gyro.path, model_path, "--config", str(path), "--out-format", "csv", "--out", str(out))
+    try:
+        gyro.write(b"".join(wire_frames("kvh-a", run_samples("kvh-a"))[:10]))
+        wait_for_rows(out, 11)
+    finally:
+        assert fogd.terminate()[0] == 0
+    assert out.read_text().startswith("t_s,rate_dph") and not (tmp_path / "from-config.out").exists()
