@@ -1,0 +1,122 @@
+"""`fit`: one entry point that scales the block rows, checks there are enough of them, fits a method and
+scores it on the same held-out folds whatever the method, so methods can be compared honestly.
+
+Scaling uses the mean and std of all training rows (a zero std becomes 1). It is only a change of units
+(the hyper-parameters live in them), so the folds reuse it rather than rescaling per fold.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fogd.errors import InputError, UsageError
+from fogd.models.folds import folds, held_out_rmse
+from fogd.models.least_squares import fit_linear, fit_polynomial, polynomial_terms
+from fogd.models.rbf import ROWS_PER_CENTRE, fit_rbf_network
+from fogd.models.svr import fit_pso_svr
+
+METHODS = ("linear", "ls-poly", "rbf-nn", "pso-svr")
+FITNESSES = ("cv", "train")
+_SVR_MIN_ROWS = 5
+_RBF_MIN_CENTRES = 2
+
+
+@dataclass
+class FitOptions:
+    """How to fit; the PSO defaults are the paper's table 1."""
+
+    degree: int = 5  # ls-poly order (paper section 4.1)
+    particles: int = 60
+    iterations: int = 100
+    c1: float = 2.0
+    c2: float = 2.0
+    fitness: str = "cv"  # "train": the paper's RMSE on the training rows; "cv": RMSE on held-out folds
+    folds: int = 5  # contiguous time folds when there is only one run
+    n_jobs: int = 1
+    seed: int = 0
+    progress: bool = True
+
+
+@dataclass
+class Fitted:
+    """A fitted model: scaling, JSON-ready `params` for fogd.frozen, and how it was chosen and scored."""
+
+    method: str
+    x_mean: np.ndarray
+    x_scale: np.ndarray
+    y_mean: float
+    y_scale: float
+    params: dict
+    hyperparameters: dict
+    fitness_history: list[float] = field(default_factory=list)  # PSO best fitness (deg/h) per iteration
+    cv_rmse_dph: float | None = None
+    estimator: object = None  # scikit-learn, scaled space; never written to a model file
+
+
+def fit(method: str, X: np.ndarray, y: np.ndarray, groups: np.ndarray, options: FitOptions = FitOptions()) -> Fitted:
+    """Fit `method` to block rows X (raw units), targets y (deg/h) and their run index `groups`."""
+    if method not in METHODS:
+        raise UsageError(f"unknown method {method!r}: choose one of {', '.join(METHODS)}")
+    if options.fitness not in FITNESSES:
+        raise UsageError(f"unknown fitness {options.fitness!r}: choose one of {', '.join(FITNESSES)}")
+    X = np.asarray(X, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    groups = np.asarray(groups)
+    if X.ndim != 2 or y.shape != (len(X),) or groups.shape != y.shape:
+        raise ValueError(f"X must be (n, d) with y and groups (n,): got {X.shape}, {y.shape}, {groups.shape}")
+    if not (np.all(np.isfinite(X)) and np.all(np.isfinite(y))):
+        raise InputError("the block rows contain NaN or infinite values: check the runs for gaps or bad samples")
+    splits = folds(groups, options.folds)
+    _check_rows(method, min(len(train) for train, _ in splits), X.shape[1], options.degree)
+
+    x_mean, x_scale = X.mean(axis=0), _nonzero(X.std(axis=0))
+    y_mean, y_scale = float(y.mean()), float(_nonzero(np.array(y.std())))
+    xs, ys = (X - x_mean) / x_scale, (y - y_mean) / y_scale
+    if method == "linear":
+        result = fit_linear(xs, ys)
+    elif method == "ls-poly":
+        result = fit_polynomial(xs, ys, options.degree)
+    elif method == "rbf-nn":
+        result = fit_rbf_network(xs, ys, splits, options.seed)
+    else:
+        result = fit_pso_svr(
+            xs, ys, splits, y_scale,
+            fitness=options.fitness, particles=options.particles, iterations=options.iterations,
+            c1=options.c1, c2=options.c2, seed=options.seed, n_jobs=options.n_jobs, progress=options.progress,
+        )
+    return Fitted(
+        method=method,
+        x_mean=x_mean,
+        x_scale=x_scale,
+        y_mean=y_mean,
+        y_scale=y_scale,
+        params=result.params,
+        hyperparameters=result.hyperparameters,
+        fitness_history=result.fitness_history,
+        cv_rmse_dph=y_scale * held_out_rmse(result.estimator, xs, ys, splits),
+        estimator=result.estimator,
+    )
+
+
+def _nonzero(scale: np.ndarray) -> np.ndarray:
+    return np.where(scale > 0, scale, 1.0)
+
+
+def _check_rows(method: str, train_rows: int, inputs: int, degree: int) -> None:
+    """Every training fold must hold enough rows for the method (the full fit has more)."""
+    if method == "ls-poly" and degree < 1:
+        raise UsageError(f"--degree must be at least 1 (got {degree})")
+    needed = {
+        "linear": inputs + 1,
+        "ls-poly": polynomial_terms(inputs, degree) + 1,
+        "rbf-nn": ROWS_PER_CENTRE * _RBF_MIN_CENTRES,
+        "pso-svr": _SVR_MIN_ROWS,
+    }[method]
+    if train_rows < needed:
+        hint = ", or a lower --degree" if method == "ls-poly" else ""
+        raise InputError(
+            f"{method} needs at least {needed} block rows in every training fold (the smallest has {train_rows}): "
+            f"record more or longer runs, or use a smaller --block-s{hint}"
+        )

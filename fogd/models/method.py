@@ -1,0 +1,15 @@
+"""What each method's fitting function hands back to `fit`: the estimator, frozen params, hyper-parameters."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass
+class MethodFit:
+    """A method's result in scaled space; `estimator` is an unfitted-clonable scikit-learn estimator, fitted."""
+
+    estimator: object
+    params: dict
+    hyperparameters: dict
+    fitness_history: list[float] = field(default_factory=list)

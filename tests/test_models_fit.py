@@ -1,0 +1,142 @@
+"""Fitting: frozen params reproduce scikit-learn, least squares recover known models, folds are honest,
+cv fitness generalises where the paper's training fitness memorises noise, and too few rows are refused."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from fogd.errors import InputError
+from fogd.frozen import build_evaluator
+from fogd.models import METHODS, FitOptions, Fitted, fit, folds
+
+QUICK = FitOptions(particles=10, iterations=10, progress=False)
+
+
+def chamber_rows(n: int, seed: int, runs: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Block rows of `runs` chamber sweeps: temperature C, rate C/s, a nonlinear error in deg/h with noise."""
+    rng = np.random.default_rng(seed)
+    temp_c = rng.uniform(-15.0, 50.0, n)
+    rate_cps = rng.uniform(-0.02, 0.02, n)
+    error_dph = 0.05 * np.sin(temp_c / 10.0) + 2.0 * rate_cps + rng.normal(0.0, 0.002, n)
+    return np.c_[temp_c, rate_cps], error_dph, np.sort(rng.integers(0, runs, n))
+
+
+def predict_dph(fitted: Fitted, x: np.ndarray) -> np.ndarray:
+    return fitted.y_mean + fitted.y_scale * build_evaluator(fitted.method, fitted.params)((x - fitted.x_mean) / fitted.x_scale)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_frozen_params_reproduce_the_estimator(method: str) -> None:
+    x, y, groups = chamber_rows(90, seed=1)
+    fitted = fit(method, x, y, groups, QUICK)
+    assert json.loads(json.dumps(fitted.params)) == fitted.params  # plain lists and floats only
+    xs = np.random.default_rng(2).uniform(-4.0, 4.0, (500, 2))  # inside and well outside the training range
+    frozen = build_evaluator(method, fitted.params)(xs)
+    np.testing.assert_allclose(frozen, fitted.estimator.predict(xs), rtol=0, atol=1e-9)
+    assert fitted.cv_rmse_dph is not None and np.isfinite(fitted.cv_rmse_dph)
+
+
+def test_ls_poly_recovers_a_known_polynomial() -> None:
+    rng = np.random.default_rng(3)
+    x = np.c_[rng.uniform(-15.0, 50.0, 60), rng.uniform(-0.02, 0.02, 60)]
+    truth = lambda x: 0.3 + 0.01 * x[:, 0] - 4e-4 * x[:, 0] ** 2 + 2e-6 * x[:, 0] ** 3 + 3.0 * x[:, 1] - 0.5 * x[:, 0] * x[:, 1]  # noqa: E731
+    fitted = fit("ls-poly", x, truth(x), np.zeros(60, int), FitOptions(degree=3, progress=False))
+    assert fitted.hyperparameters == {"degree": 3}
+    assert len(fitted.params["powers"]) == 9 and all(1 <= sum(p) <= 3 for p in fitted.params["powers"])
+    fresh = np.c_[rng.uniform(-15.0, 50.0, 200), rng.uniform(-0.02, 0.02, 200)]
+    np.testing.assert_allclose(predict_dph(fitted, fresh), truth(fresh), rtol=0, atol=1e-10)
+    assert fitted.cv_rmse_dph < 1e-10  # exact model: nothing left out of sample either
+
+
+def test_linear_recovers_known_coefficients() -> None:
+    rng = np.random.default_rng(4)
+    x = np.c_[rng.uniform(-15.0, 50.0, 40), rng.uniform(-0.02, 0.02, 40)]
+    fitted = fit("linear", x, 0.3 + 0.02 * x[:, 0] - 4.0 * x[:, 1], np.zeros(40, int), QUICK)
+    raw_slope = np.array(fitted.params["coef"]) * fitted.y_scale / fitted.x_scale
+    np.testing.assert_allclose(raw_slope, [0.02, -4.0], rtol=1e-10)
+    np.testing.assert_allclose(predict_dph(fitted, np.array([[0.0, 0.0]])), [0.3], atol=1e-12)
+
+
+def test_cv_rmse_is_leave_one_run_out() -> None:
+    x, y, groups = chamber_rows(80, seed=5, runs=3)
+    squared = []
+    for run in range(3):
+        train, test = groups != run, groups == run
+        design = np.c_[np.ones(train.sum()), x[train]]
+        beta = np.linalg.lstsq(design, y[train], rcond=None)[0]
+        squared.append((np.c_[np.ones(test.sum()), x[test]] @ beta - y[test]) ** 2)
+    expected = np.sqrt(np.mean(np.concatenate(squared)))
+    assert fit("linear", x, y, groups, QUICK).cv_rmse_dph == pytest.approx(expected, rel=1e-9)
+
+
+def test_folds_leave_one_run_out() -> None:
+    groups = np.array([0, 0, 0, 2, 2, 5, 5, 5, 5])
+    splits = folds(groups, 5)
+    assert [sorted(set(groups[test])) for _, test in splits] == [[0], [2], [5]]
+    for train, test in splits:
+        assert set(groups[train]).isdisjoint(groups[test])
+        assert sorted(np.concatenate([train, test])) == list(range(9))
+    assert sorted(np.concatenate([test for _, test in splits])) == list(range(9))  # each row tested once
+
+
+def test_folds_contiguous_in_time_for_one_run() -> None:
+    splits = folds(np.zeros(23, int), 4)
+    assert len(splits) == 4
+    tested = np.concatenate([test for _, test in splits])
+    assert list(tested) == list(range(23))  # in time order, each row once
+    for train, test in splits:
+        assert list(test) == list(range(test[0], test[-1] + 1))
+        assert sorted(np.concatenate([train, test])) == list(range(23))
+
+
+@pytest.mark.parametrize("n_folds, rows", [(1, 50), (5, 8)])
+def test_folds_refuse_too_few(n_folds: int, rows: int) -> None:
+    with pytest.raises(InputError, match="folds"):
+        folds(np.zeros(rows, int), n_folds)
+
+
+def test_too_few_rows_for_the_polynomial() -> None:
+    x, y, groups = chamber_rows(24, seed=6)  # folds train on ~12 rows; degree 5 in 2 inputs has 20 terms
+    with pytest.raises(InputError, match="--degree"):
+        fit("ls-poly", x, y, groups, QUICK)
+    assert fit("ls-poly", x, y, groups, FitOptions(degree=2, progress=False)).params["powers"]
+
+
+def test_too_few_rows_for_pso_svr() -> None:
+    x, y, _ = chamber_rows(6, seed=7)
+    with pytest.raises(InputError, match="block-s"):
+        fit("pso-svr", x, y, np.array([0, 0, 0, 0, 0, 1]), QUICK)
+
+
+def truth_dph(x: np.ndarray) -> np.ndarray:
+    return np.sin(x[:, 0] / 8.0) + 0.3 * np.cos(40.0 * x[:, 1])
+
+
+def noisy_toy(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    x = np.c_[rng.uniform(-15.0, 50.0, n), rng.uniform(-0.05, 0.05, n)]
+    return x, truth_dph(x) + rng.normal(0.0, 0.2, n), rng.integers(0, 4, n)
+
+
+def test_cv_fitness_generalises_where_train_fitness_memorises() -> None:
+    x, y, groups = noisy_toy(120, seed=0)
+    fresh, _, _ = noisy_toy(500, seed=99)
+    by_fitness = {f: fit("pso-svr", x, y, groups, FitOptions(particles=10, iterations=10, fitness=f, progress=False)) for f in ("train", "cv")}
+    test_rmse = {f: np.sqrt(np.mean((predict_dph(m, fresh) - truth_dph(fresh)) ** 2)) for f, m in by_fitness.items()}
+    assert test_rmse["cv"] < 0.5 * test_rmse["train"]
+    assert by_fitness["cv"].hyperparameters["sigma"] > 10 * by_fitness["train"].hyperparameters["sigma"]
+    assert by_fitness["train"].fitness_history[-1] < 0.05 < by_fitness["cv"].fitness_history[-1]  # noise sd is 0.2
+    assert by_fitness["cv"].cv_rmse_dph == pytest.approx(by_fitness["cv"].fitness_history[-1], rel=1e-9)
+
+
+def test_pso_svr_hyperparameters_are_consistent() -> None:
+    x, y, groups = chamber_rows(60, seed=8)
+    fitted = fit("pso-svr", x, y, groups, QUICK)
+    hyper = fitted.hyperparameters
+    assert hyper["gamma"] == pytest.approx(1.0 / (2.0 * hyper["sigma"] ** 2)) == fitted.params["gamma"]
+    assert hyper["epsilon_dph"] == pytest.approx(hyper["epsilon"] * np.std(y))
+    assert len(fitted.fitness_history) == 10 and np.all(np.diff(fitted.fitness_history) <= 0)
+    assert 1e-2 <= hyper["C"] <= 1e4 and 1e-4 <= hyper["epsilon"] <= 1 and 1e-2 <= hyper["sigma"] <= 1e2
