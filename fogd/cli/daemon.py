@@ -9,15 +9,17 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import signal
 import sys
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import yaml
 
-from fogd import modelfile, protocols
+from fogd import modelfile, profiles, protocols
 from fogd.cli.common import ArgumentParser, positive_float, positive_int, run
 from fogd.daemon import RING_CAPACITY, Daemon
 from fogd.errors import ConfigError, describe_os_error
@@ -31,6 +33,9 @@ from fogd.serialio import open_port
 PROG = "fogd"
 DEFAULT_MODEL = "/var/lib/fogd/model.json"
 DEMO_MODEL = Path(__file__).resolve().parent.parent / "data" / "demo-model.json"
+DEMO_PROFILE = "paper-test"
+DEMO_RATE_HZ = 100.0
+DEMO_SPEED = 60.0  # three chamber hours in three minutes
 AXES = ("x", "y", "z")
 MAX_CONFIG_BYTES = 1 << 20
 
@@ -158,6 +163,51 @@ def settings_from(args: argparse.Namespace) -> dict[str, Any]:
     return settings
 
 
+def settings_given(args: argparse.Namespace) -> set[str]:
+    """The settings named on the command line or in the config file."""
+    given = {key for key in OPTION_BY_KEY if hasattr(args, key)}
+    return given | (set(load_config(args.config)) if args.config else set())
+
+
+def demo(settings: dict[str, Any], protocol: protocols.Protocol, model, *, out_given: bool) -> int:
+    """The emulator streams a simulated chamber run, compressed in time, onto a pty in this process; fogd
+    compensates it and prints a live status line every second. Output is discarded unless --out is given."""
+    from fogd.emulator import Emulator, SimSource
+
+    source = SimSource(profiles.builtin(DEMO_PROFILE), DEMO_RATE_HZ, seed=1)
+    emulator = Emulator(source, protocol.name, speed=DEMO_SPEED, wait_reader=True, drain_timeout_s=0.0)
+    path = emulator.start()
+    print(
+        f"fogd demo: simulated FOG on {path} ({DEMO_PROFILE} chamber profile at {DEMO_SPEED:g}x real time, "
+        f"{DEMO_RATE_HZ:g} Hz), model {model.name}; Ctrl-C to stop",
+        file=sys.stderr,
+    )
+    settings = {**settings, "port": path, "rate_hz": DEMO_RATE_HZ, "out": settings["out"] if out_given else os.devnull}
+    finished = threading.Event()
+
+    def live(daemon: Daemon) -> None:
+        while not finished.wait(1.0):
+            latest, lexer = daemon.latest, daemon.reader.lexer.counters
+            drops = lexer.bad_crc + lexer.truncated + lexer.bad_line + daemon.ring.overruns
+            print(
+                f"\rrate {latest.rate_dph:+9.3f}  comp {latest.comp_dph:+8.3f}  compensated {latest.rate_comp_dph:+9.3f} "
+                f"deg/h  T {latest.temp_c:6.2f} C  dT/dt {latest.temp_rate_cps:+.5f} C/s  frames {lexer.frames_ok}  "
+                f"drops {drops}\x1b[K",
+                end="", file=sys.stderr, flush=True,
+            )  # fmt: skip
+
+    def start_live(daemon: Daemon) -> None:
+        threading.Thread(target=live, args=(daemon,), name="fogd-demo-status", daemon=True).start()
+
+    try:
+        return serve(settings, protocol, model, on_daemon=start_live)
+    finally:
+        finished.set()
+        print(file=sys.stderr)
+        emulator.stop()
+        emulator.join(1.0)
+
+
 def configure_logging(verbose: bool, quiet: bool) -> None:
     level = logging.DEBUG if verbose else logging.WARNING if quiet else logging.INFO
     logging.basicConfig(stream=sys.stderr, level=level, format="%(name)s: %(message)s")
@@ -176,7 +226,7 @@ def body(argv: Sequence[str] | None) -> int:
     protocol = protocols.get(settings["protocol"], **protocol_options)
     model = modelfile.load(settings["model"])
     if args.demo:
-        raise ConfigError("--demo needs fogd.emulator, which this build does not have yet")
+        return demo(settings, protocol, model, out_given="out" in settings_given(args))
     return serve(settings, protocol, model)
 
 
