@@ -140,3 +140,11 @@ def test_pso_svr_hyperparameters_are_consistent() -> None:
     assert hyper["epsilon_dph"] == pytest.approx(hyper["epsilon"] * np.std(y))
     assert len(fitted.fitness_history) == 10 and np.all(np.diff(fitted.fitness_history) <= 0)
     assert 1e-2 <= hyper["C"] <= 1e4 and 1e-4 <= hyper["epsilon"] <= 1 and 1e-2 <= hyper["sigma"] <= 1e2
+
+
+def test_a_constant_input_gets_unit_scale() -> None:
+    x, y, groups = chamber_rows(40, seed=9)
+    x = np.c_[x, np.full(40, 5.0)]
+    fitted = fit("linear", x, y, groups, QUICK)
+    assert fitted.x_scale[2] == 1.0 and fitted.x_scale[0] == pytest.approx(np.std(x[:, 0]))
+    assert np.all(np.isfinite(predict_dph(fitted, x)))

@@ -71,8 +71,9 @@ def fit(method: str, X: np.ndarray, y: np.ndarray, groups: np.ndarray, options: 
     splits = folds(groups, options.folds)
     _check_rows(method, min(len(train) for train, _ in splits), X.shape[1], options.degree)
 
-    x_mean, x_scale = X.mean(axis=0), _nonzero(X.std(axis=0))
-    y_mean, y_scale = float(y.mean()), float(_nonzero(np.array(y.std())))
+    x_mean, x_std = X.mean(axis=0), X.std(axis=0)
+    x_scale = np.where(x_std > 0, x_std, 1.0)
+    y_mean, y_scale = float(y.mean()), float(y.std()) or 1.0
     xs, ys = (X - x_mean) / x_scale, (y - y_mean) / y_scale
     if method == "linear":
         result = fit_linear(xs, ys)
@@ -98,10 +99,6 @@ def fit(method: str, X: np.ndarray, y: np.ndarray, groups: np.ndarray, options: 
         cv_rmse_dph=y_scale * held_out_rmse(result.estimator, xs, ys, splits),
         estimator=result.estimator,
     )
-
-
-def _nonzero(scale: np.ndarray) -> np.ndarray:
-    return np.where(scale > 0, scale, 1.0)
 
 
 def _check_rows(method: str, train_rows: int, inputs: int, degree: int) -> None:

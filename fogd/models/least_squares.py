@@ -7,6 +7,8 @@ stored in the model file.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from sklearn.linear_model import LinearRegression
 from sklearn.pipeline import Pipeline, make_pipeline
@@ -17,7 +19,7 @@ from fogd.models.method import MethodFit
 
 def polynomial_terms(inputs: int, degree: int) -> int:
     """How many monomials of total degree 1..degree there are in `inputs` variables."""
-    return PolynomialFeatures(degree, include_bias=False).fit(np.zeros((1, inputs))).n_output_features_
+    return math.comb(inputs + degree, degree) - 1
 
 
 def fit_linear(xs: np.ndarray, ys: np.ndarray) -> MethodFit:

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 @dataclass
 class MethodFit:
-    """A method's result in scaled space; `estimator` is an unfitted-clonable scikit-learn estimator, fitted."""
+    """A method's result in scaled space; `estimator` is fitted, and cloned to refit it on each fold."""
 
     estimator: object
     params: dict
