@@ -106,6 +106,33 @@ class Fogd:
             self.process.wait()
 
 
+EMU = [sys.executable, "-m", "fogd.cli.emu"]
+
+
+class Emu:
+    """fogd-emu in a subprocess playing a run CSV as fast as the reader takes it, once a reader is there."""
+
+    def __init__(self, tmp_path: Path, run_csv: Path, protocol: str, *faults: str) -> None:
+        self.ledger = tmp_path / "ledger.jsonl"
+        command = [*EMU, "--csv", str(run_csv), "--protocol", protocol, "--fast", "--wait-reader",
+                   "--temp-rate-hz", "250", "--ledger", str(self.ledger), *faults]  # fmt: skip
+        self.process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        self.path = self.process.stdout.readline().strip()
+        assert self.path, self.process.stderr.read()
+
+    def finish(self, timeout_s: float = 20.0) -> list[dict]:
+        """Wait for the end of the run; the ledger's lines."""
+        assert self.process.wait(timeout_s) == 0, self.process.stderr.read()
+        return [json.loads(line) for line in self.ledger.read_text().splitlines()]
+
+    def kill(self) -> None:
+        if self.process.poll() is None:
+            self.process.kill()
+        self.process.wait()
+        self.process.stdout.close()
+        self.process.stderr.close()
+
+
 def start_fogd(tmp_path: Path, port: str, model: Path, *args: str) -> Fogd:
     fogd = Fogd(tmp_path, "--port", port, "--model", str(model), "--rate-hz", str(RATE_HZ), "--status-interval-s", "60", *args)
     fogd.wait_for("fogd.daemon: reading")
@@ -167,22 +194,85 @@ def assert_same_as_replay(output: np.ndarray, expected: np.ndarray) -> None:
 
 
 @pytest.mark.parametrize("protocol", ["kvh-a", "fogd", "ascii"])
-def test_csv_output_equals_replay_frame_by_frame(tmp_path, gyro, model_path, protocol):
+def test_recorded_run_through_emulator_and_fogd_equals_replay(tmp_path, model_path, protocol):
     samples = run_samples(protocol)
-    out = tmp_path / "out.csv"
-    fogd = start_fogd(tmp_path, gyro.path, model_path, "--protocol", protocol, "--out-format", "csv", "--out", str(out))
+    run_csv, out = tmp_path / "run.csv", tmp_path / "out.csv"
+    write_run(run_csv, samples)
+    emu = Emu(tmp_path, run_csv, protocol)
     try:
-        gyro.write(b"".join(wire_frames(protocol, samples)))
-        wait_for_rows(out, SAMPLES + 1)
-        status, took_s = fogd.terminate()
+        fogd = start_fogd(tmp_path, emu.path, model_path, "--protocol", protocol, "--out-format", "csv", "--out", str(out))
+        try:
+            emu.finish()
+            wait_for_rows(out, SAMPLES + 1)
+            status, took_s = fogd.terminate()
+        finally:
+            fogd.kill()
     finally:
-        fogd.kill()
+        emu.kill()
     assert status == 0 and took_s < 2.0, fogd.stderr
     assert out.read_text().splitlines()[0] == ",".join(OUT_COLUMNS)
     assert_same_as_replay(np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2), replayed(tmp_path, model_path, samples))
     counters = fogd.counters()
     assert counters["writer"]["frames_written"] == SAMPLES
     assert counters["lexer"]["bad_crc"] == counters["lexer"]["truncated"] == counters["lexer"]["bad_line"] == 0
+
+
+def expected_from_ledger(ledger: list[dict]) -> dict[str, np.ndarray]:
+    """The samples fogd should compensate: every valid frame that was sent, in order, with the temperature
+    held from the newest valid frame that carried one."""
+    rates, temps, held = [], [], np.nan
+    for line in ledger:
+        if not (line["sent"] and line["valid"]):
+            continue
+        if line["kind"] in ("imu", "temp"):
+            held = np.nan if line["temp_c"] is None else line["temp_c"]
+        if line["kind"] in ("imu", "rate"):
+            rates.append(np.nan if line["rate_dph"] is None else line["rate_dph"])
+            temps.append(held)
+    n = len(rates)
+    return {"t_s": np.arange(n) / RATE_HZ, "rate_dph": np.array(rates), "temp_c": np.array(temps)}
+
+
+FAULTS = {
+    "kvh-a": ["--garbage", "0.05", "--bitflip", "0.05", "--drop", "0.03", "--repeat", "0.03", "--nan", "0.03", "--split", "0.05"],
+    "fogd": ["--garbage", "0.05", "--bitflip", "0.05", "--drop", "0.03", "--repeat", "0.03", "--nan", "0.03", "--split", "0.05"],
+    # a flipped bit in a text line may still parse as another number, so ascii gets no bit flips
+    "ascii": ["--garbage", "0.05", "--drop", "0.03", "--repeat", "0.03", "--nan", "0.03", "--split", "0.05"],
+}
+
+
+@pytest.mark.parametrize("protocol", list(FAULTS))
+def test_emulator_faults_are_counted_and_no_valid_frame_is_lost(tmp_path, model_path, protocol):
+    samples = run_samples(protocol, seed=7)
+    run_csv, out = tmp_path / "run.csv", tmp_path / "out.csv"
+    write_run(run_csv, samples)
+    emu = Emu(tmp_path, run_csv, protocol, *FAULTS[protocol], "--fault-seed", "4")
+    try:
+        fogd = start_fogd(tmp_path, emu.path, model_path, "--protocol", protocol, "--out-format", "csv", "--out", str(out))
+        try:
+            ledger = emu.finish()
+            expected = expected_from_ledger(ledger)
+            wait_for_rows(out, len(expected["rate_dph"]) + 1)
+            assert fogd.terminate()[0] == 0
+        finally:
+            fogd.kill()
+    finally:
+        emu.kill()
+    output = np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2)
+    reference = replayed(tmp_path, model_path, expected)
+    assert output.shape == reference.shape  # one output row per valid rate frame, none lost, none extra
+    np.testing.assert_allclose(output[:, 1:6], reference[:, 1:6], rtol=1e-9, atol=1e-12)
+    assert output[:, 6].tolist() == reference[:, 6].tolist()
+    sent = [line for line in ledger if line["sent"]]
+    corrupted = [line for line in sent if not line["valid"]]
+    lexer = fogd.counters()["lexer"]
+    assert lexer["frames_ok"] == len(sent) - len(corrupted)
+    assert lexer["bad_crc"] + lexer["truncated"] + lexer["bad_line"] == len(corrupted) + (
+        sum(1 for line in sent if line["garbage_bytes"]) if protocol == "ascii" else 0
+    )
+    assert len(corrupted) > 0 or protocol == "ascii"
+    if protocol != "ascii":  # ascii lines carry no sequence number: a repeat is just another sample
+        assert lexer["seq_repeats"] == sum(1 for line in sent if line["faults"] == ["repeat"] and line["valid"]) > 0
 
 
 def test_same_output_is_kvh_with_compensated_z(tmp_path, gyro, model_path):
