@@ -110,15 +110,18 @@ EMU = [sys.executable, "-m", "fogd.cli.emu"]
 
 
 class Emu:
-    """fogd-emu in a subprocess playing a run CSV as fast as the reader takes it, once a reader is there."""
+    """fogd-emu in a subprocess playing a run CSV (by default as fast as the reader takes it), once a reader
+    is there; `options` add faults or pacing. Readers open its link, which goes when it exits, so a reader
+    reconnecting afterwards can never pick up a recycled /dev/pts number."""
 
-    def __init__(self, tmp_path: Path, run_csv: Path, protocol: str, *faults: str) -> None:
+    def __init__(self, tmp_path: Path, run_csv: Path, protocol: str, *options: str) -> None:
         self.ledger = tmp_path / "ledger.jsonl"
-        command = [*EMU, "--csv", str(run_csv), "--protocol", protocol, "--fast", "--wait-reader",
-                   "--temp-rate-hz", "250", "--ledger", str(self.ledger), *faults]  # fmt: skip
+        self.path = str(tmp_path / "fog0")
+        pacing = [] if "--speed" in options else ["--fast"]
+        command = [*EMU, "--csv", str(run_csv), "--protocol", protocol, *pacing, "--wait-reader", "--link", self.path,
+                   "--temp-rate-hz", "250", "--ledger", str(self.ledger), *options]  # fmt: skip
         self.process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        self.path = self.process.stdout.readline().strip()
-        assert self.path, self.process.stderr.read()
+        assert self.process.stdout.readline().strip(), self.process.stderr.read()
 
     def finish(self, timeout_s: float = 20.0) -> list[dict]:
         """Wait for the end of the run; the ledger's lines."""
