@@ -21,7 +21,7 @@ import time
 import tty
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import IO, Protocol as TypingProtocol
+from typing import IO, TYPE_CHECKING, Protocol as TypingProtocol
 
 import numpy as np
 
@@ -30,7 +30,9 @@ from fogd.errors import ConfigError, DeviceError, FogdError, InputError, describ
 from fogd.profiles import Profile
 from fogd.protocols.base import ALL_AXES, NAN, Z_ONLY, Frame, FrameError
 from fogd.runio import Run
-from fogd.simulator import SimParams, Simulation
+
+if TYPE_CHECKING:
+    from fogd.simulator import SimParams
 
 TICK_S = 0.001  # real-time pacing writes every frame that is due, at most once per tick
 FAST_BATCH_SAMPLES = 64
@@ -40,6 +42,8 @@ POLL_MS = 50  # how long a blocked write waits before looking at stop() again
 NO_READER_RETRY_S = 0.005
 # pyserial flushes the input right after opening a port: frames written in that moment would be lost.
 READER_SETTLE_S = 0.1
+# Bytes already written at an unplug are on the wire: a reader that keeps up gets them before the pty closes.
+UNPLUG_DRAIN_S = 0.2
 MAX_GARBAGE_BYTES = 16
 FAULTS = ("garbage", "bitflip", "drop", "repeat", "nan", "clear_status", "split")
 HEADER_BYTES = {"kvh-a": 4, "fogd": 4, "ascii": 0}  # bytes a bit flip leaves alone: sync, type, length
@@ -58,6 +62,8 @@ class SimSource:
     """A live simulated chamber run (fogd.simulator), made block by block as it is streamed."""
 
     def __init__(self, profile: Profile, rate_hz: float, seed: int, params: SimParams | None = None) -> None:
+        from fogd.simulator import Simulation  # imports scipy (most of a second): only when simulating
+
         try:
             self._sim = Simulation(profile, rate_hz, seed, params)
         except ValueError as error:
@@ -201,11 +207,15 @@ class PtyEndpoint:
         earlier would throw them away."""
         deadline = time.monotonic() + timeout_s
         probe = os.open(self.path, os.O_RDONLY | os.O_NOCTTY | os.O_NONBLOCK)
+        poller = select.poll()
+        poller.register(probe, select.POLLIN)
         try:
             quiet = 0
             while True:
-                # Written bytes reach the slave's queue through a kernel work queue: look twice.
-                quiet = quiet + 1 if _queued_bytes(probe) == 0 else 0
+                # Written bytes reach the slave's queue through a kernel work queue that FIONREAD does not
+                # wait for (poll does): ask both, twice.
+                pending = poller.poll(0) or _queued_bytes(probe) > 0
+                quiet = 0 if pending else quiet + 1
                 if quiet == 2:
                     return True
                 if time.monotonic() >= deadline:
@@ -316,6 +326,7 @@ class Emulator:
         self._ledger: IO[str] | None = None
         self._ledger_index = 0
         self._schedule_shift_s = 0.0
+        self._unsent = b""  # drop_when_full: the rest of a frame the pty took only part of
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._error: BaseException | None = None
@@ -412,8 +423,10 @@ class Emulator:
                 return
             now = time.monotonic()
             if unplugged_until is None and faults.unplug_every_s and now - connected_at >= faults.unplug_every_s:
+                self._finish_unsent()
+                self.pty.drain(UNPLUG_DRAIN_S)
                 self.pty.close()
-                unplugged_until = now + faults.unplug_for_s
+                unplugged_until = time.monotonic() + faults.unplug_for_s
             if unplugged_until is not None and now >= unplugged_until:
                 waited_s = self._replug()
                 self._schedule_shift_s += waited_s
@@ -446,6 +459,11 @@ class Emulator:
                 delay_s = max(next_due_s, now + TICK_S) - time.monotonic()
                 if delay_s > 0:
                     self._stop.wait(delay_s)
+        self._finish_unsent()
+
+    def _finish_unsent(self) -> None:
+        self._write(self._unsent)
+        self._unsent = b""
 
     def _samples(self) -> Iterator[tuple[int, float, float, float]]:
         """(sample index, device time s, rate_dph, temp_c); a loop continues the device clock."""
@@ -519,31 +537,52 @@ class Emulator:
         return emissions
 
     def _send(self, emissions: list[_Emission]) -> None:
-        """Write the emissions in order, in as few writes as splits (and drop_when_full) allow."""
+        """Write the emissions in order, in as few writes as splits allow."""
+        if self.drop_when_full:
+            self._send_or_drop(emissions)
+            return
         batch = bytearray()
         for emission in emissions:
             if not emission.sent:
                 continue
             first, *rest = emission.parts
-            if self.drop_when_full:
-                if not self._write(first, may_drop=True):
-                    emission.lose("full")
-                    continue
-            else:
-                batch += first
+            batch += first
             for part in rest:
                 self._write(batch)
                 batch.clear()
                 self._stop.wait(SPLIT_PAUSE_S)
                 batch += part
-            if self.drop_when_full:
-                self._write(batch)
-                batch.clear()
         self._write(batch)
 
-    def _write(self, data: bytes | bytearray, may_drop: bool = False) -> bool:
+    def _send_or_drop(self, emissions: list[_Emission]) -> None:
+        """drop_when_full: a frame the pty has no room for is dropped; one cut short by a full pty is finished
+        later (frames are dropped meanwhile), as from a UART's transmit FIFO. Never waits, except for a split."""
+        for emission in emissions:
+            if not emission.sent:
+                continue
+            self._unsent = self._unsent[self._try_write(self._unsent) :]
+            first, *rest = emission.parts
+            written = 0 if self._unsent else self._try_write(first)
+            if written == 0:
+                emission.lose("full")
+                continue
+            self._unsent = first[written:]
+            for part in rest:
+                self._stop.wait(SPLIT_PAUSE_S)
+                self._unsent += part
+                self._unsent = self._unsent[self._try_write(self._unsent) :]
+
+    def _try_write(self, data: bytes) -> int:
+        if not data:
+            return 0
+        try:
+            return os.write(self.pty.master_fd, data)
+        except BlockingIOError:
+            return 0
+
+    def _write(self, data: bytes | bytearray) -> None:
         """Write all of `data`, waiting while the pty is full (backpressure: the schedule slides so the
-        stream resumes at its pace, with no burst). With may_drop, give up if not one byte fits now."""
+        stream resumes at its pace, with no burst)."""
         view = memoryview(data)
         blocked_since = None
         fd = self.pty.master_fd
@@ -555,8 +594,6 @@ class Emulator:
             if written:
                 view = view[written:]
                 continue
-            if may_drop and len(view) == len(data):
-                return False
             if blocked_since is None:
                 blocked_since = time.monotonic()
             if self._stop.is_set():
@@ -567,7 +604,6 @@ class Emulator:
             blocked_s = time.monotonic() - blocked_since
             self.stats.backpressure_s += blocked_s
             self._schedule_shift_s += blocked_s
-        return True
 
     def _wait_for_reader(self) -> float:
         """With wait_reader, block until the slave is open; returns the seconds waited."""

@@ -16,7 +16,6 @@ from fogd.cli.common import ArgumentParser, non_negative_float, positive_float, 
 from fogd.emulator import Emulator, Faults, RunSource, SimSource
 from fogd.errors import UsageError
 from fogd.runio import read_run
-from fogd.simulator import MAX_RATE_HZ, MIN_RATE_HZ
 
 PROG = "fogd-emu"
 DEFAULT_RATE_HZ = 200.0
@@ -29,13 +28,6 @@ def _probability(text: str) -> float:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
     if not 0.0 <= value <= 1.0:
         raise argparse.ArgumentTypeError(f"{text!r} is not a probability (0..1)")
-    return value
-
-
-def _rate_hz(text: str) -> float:
-    value = positive_float(text)
-    if not MIN_RATE_HZ <= value <= MAX_RATE_HZ:
-        raise argparse.ArgumentTypeError(f"{text} is outside {MIN_RATE_HZ:g}..{MAX_RATE_HZ:g} Hz")
     return value
 
 
@@ -70,8 +62,8 @@ def parser() -> ArgumentParser:
     source.add_argument("--profile", metavar="NAME|FILE.yaml",
                         help=f"simulate a chamber profile: {', '.join(profiles.names())}, or a YAML file")
     source.add_argument("--csv", metavar="RUN.csv", help="play a recorded run (columns t_s,rate_dph,temp_c) at its own rate")
-    add("--rate-hz", metavar="HZ", type=_rate_hz,
-        help=f"sample rate for --profile, {MIN_RATE_HZ:g}..{MAX_RATE_HZ:g} Hz (default: {DEFAULT_RATE_HZ:g})")
+    add("--rate-hz", metavar="HZ", type=positive_float,
+        help=f"sample rate for --profile, 1..5000 Hz (default: {DEFAULT_RATE_HZ:g})")
     add("--seed", metavar="N", type=_seed, help="simulator seed for --profile (default: 1)")
     add("--temp-rate-hz", metavar="HZ", type=positive_float, default=10.0,
         help="fogd protocol: temperature frames per second, at most the sample rate (default: 10)")
