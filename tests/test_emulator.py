@@ -6,7 +6,6 @@ import math
 import os
 import select
 import signal
-import struct
 import subprocess
 import sys
 import time
@@ -316,6 +315,15 @@ def test_unplug_repoints_the_link_to_a_new_pty_and_the_data_continues(tmp_path):
     assert lost and all(entry["faults"] == ["unplugged"] for entry in lost)
     assert [frame.seq for frame in frames] == [entry["seq"] for entry in entries if entry["sent"]]
     assert not os.path.lexists(link)
+
+
+def test_duration_counts_seconds_of_data_and_the_path_is_the_first_line(run_csv: Path, tmp_path: Path, capsys):
+    ledger = tmp_path / "ledger.jsonl"
+    assert main(["--csv", str(run_csv), "--duration-s", "0.5", "--fast", "--ledger", str(ledger), "--drain-s", "0"]) == 0
+    captured = capsys.readouterr()
+    assert captured.out.startswith("/dev/pts/") and captured.out.count("\n") == 1
+    assert "sent 100 frames for 100 samples" in captured.err
+    assert [entry["sample"] for entry in ledger_lines(ledger)] == list(range(100))
 
 
 def test_sigterm_stops_cleanly_with_a_summary(tmp_path):

@@ -61,7 +61,7 @@ def parser() -> ArgumentParser:
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--profile", metavar="NAME|FILE.yaml",
                         help=f"simulate a chamber profile: {', '.join(profiles.names())}, or a YAML file")
-    source.add_argument("--csv", metavar="RUN.csv", help="play a recorded run (columns t_s,rate_dph,temp_c) at its own rate")
+    source.add_argument("--csv", metavar="RUN.csv", help="play a recorded run (columns t_s,rate_dph,temp_c) at its own rate (see --speed)")
     add("--rate-hz", metavar="HZ", type=positive_float,
         help=f"sample rate for --profile, 1..5000 Hz (default: {DEFAULT_RATE_HZ:g})")
     add("--seed", metavar="N", type=_seed, help="simulator seed for --profile (default: 1)")
@@ -85,7 +85,7 @@ def parser() -> ArgumentParser:
     add("--ledger", metavar="PATH.jsonl", help="write one JSON line per frame: what was sent and injected")
     faults = p.add_argument_group("faults (probabilities per frame, 0..1; all drawn from --fault-seed)")
     fault = faults.add_argument
-    fault("--garbage", metavar="P", type=_probability, default=0.0, help="1..16 random bytes before a frame")
+    fault("--garbage", metavar="P", type=_probability, default=0.0, help="1..16 random bytes before a frame (ascii: a non-ASCII line)")
     fault("--bitflip", metavar="P", type=_probability, default=0.0, help="flip one bit (a bad CRC)")
     fault("--drop", metavar="P", type=_probability, default=0.0, help="drop a frame (a sequence gap)")
     fault("--repeat", metavar="P", type=_probability, default=0.0, help="send a frame twice")
