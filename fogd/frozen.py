@@ -78,15 +78,18 @@ class RbfNetwork:
 
 @dataclass(frozen=True)
 class Svr:
-    """g(x) = sum_i dual_coef_i exp(-gamma ||x - sv_i||^2) + intercept (paper eq. 12-13, gamma = 1/(2 sigma^2))."""
+    """g(x) = trend_coef . x + sum_i dual_coef_i exp(-gamma ||x - sv_i||^2) + intercept (paper eq. 12-13,
+    gamma = 1/(2 sigma^2); the linear trend is zero for the paper's plain SVR)."""
 
     support_vectors: np.ndarray
     dual_coef: np.ndarray
     gamma: float
+    trend_coef: np.ndarray
     intercept: float
 
     def __call__(self, xs: np.ndarray) -> np.ndarray:
-        return _gaussian_sum(xs, self.support_vectors, self.dual_coef, self.gamma) + self.intercept
+        kernel = _gaussian_sum(xs, self.support_vectors, self.dual_coef, self.gamma)
+        return _row_dot(xs, self.trend_coef) + kernel + self.intercept
 
 
 Evaluator = Callable[[np.ndarray], np.ndarray]
@@ -131,5 +134,10 @@ def build_evaluator(method: str, params: dict) -> Evaluator:
     if method == "rbf-nn":
         return RbfNetwork(array("centres"), float(params["width"]), array("coef"), float(params["intercept"]))
     if method == "pso-svr":
-        return Svr(array("support_vectors"), array("dual_coef"), float(params["gamma"]), float(params["intercept"]))
+        trend_coef = array("trend_coef")
+        return Svr(
+            array("support_vectors").reshape(-1, trend_coef.size),  # none at all when the trend explains everything
+            array("dual_coef"), float(params["gamma"]), trend_coef,
+            float(params["intercept"]),
+        )  # fmt: skip
     raise ValueError(f"unknown method {method!r}")

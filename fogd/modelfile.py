@@ -34,7 +34,7 @@ PARAM_KEYS = {
     "linear": {"coef", "intercept"},
     "ls-poly": {"powers", "coef", "intercept"},
     "rbf-nn": {"centres", "width", "coef", "intercept"},
-    "pso-svr": {"support_vectors", "dual_coef", "gamma", "intercept"},
+    "pso-svr": {"support_vectors", "dual_coef", "gamma", "trend_coef", "intercept"},
 }
 _BINARY_MAGIC = {
     b"\x80": "a Python pickle",
@@ -220,12 +220,13 @@ class _Checker:
             self.fail(where, f"has more than {MAX_ROWS} entries")
         return np.array([self.number(item, f"{where}[{i}]", positive=positive) for i, item in enumerate(value)])
 
-    def matrix(self, value: Any, where: str, columns: int) -> np.ndarray:
-        if not isinstance(value, list) or not value:
+    def matrix(self, value: Any, where: str, columns: int, *, allow_empty: bool = False) -> np.ndarray:
+        if not isinstance(value, list) or not (value or allow_empty):
             self.fail(where, "must be a non-empty list of rows")
         if len(value) > MAX_ROWS:
             self.fail(where, f"has more than {MAX_ROWS} rows")
-        return np.array([self.vector(row, f"{where}[{i}]", columns) for i, row in enumerate(value)])
+        rows = [self.vector(row, f"{where}[{i}]", columns) for i, row in enumerate(value)]
+        return np.array(rows).reshape(len(rows), columns)
 
     def inputs(self, value: Any) -> tuple[InputSpec, ...]:
         if not isinstance(value, list) or not 1 <= len(value) <= 16:
@@ -266,9 +267,11 @@ class _Checker:
             out["width"] = self.number(value["width"], "params.width", positive=True)
             out["coef"] = self.vector(value["coef"], "params.coef", len(out["centres"]))
         else:
-            out["support_vectors"] = self.matrix(value["support_vectors"], "params.support_vectors", d)
+            # an SVR may keep no support vector at all when its linear trend explains every block
+            out["support_vectors"] = self.matrix(value["support_vectors"], "params.support_vectors", d, allow_empty=True)
             out["dual_coef"] = self.vector(value["dual_coef"], "params.dual_coef", len(out["support_vectors"]))
             out["gamma"] = self.number(value["gamma"], "params.gamma", positive=True)
+            out["trend_coef"] = self.vector(value["trend_coef"], "params.trend_coef", d)
         return out
 
 

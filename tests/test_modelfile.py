@@ -44,6 +44,7 @@ PARAMS: dict[str, dict[str, Any]] = {
         "support_vectors": [[0.1, 0.2], [-1.0, 0.5], [0.7, -0.3], [1.5, 1.5]],
         "dual_coef": [0.9, -0.4, 0.3, -1.0],
         "gamma": 0.6,
+        "trend_coef": [0.25, -0.5],
         "intercept": 0.05,
     },
 }
@@ -88,7 +89,7 @@ def expected(method: str, x: np.ndarray) -> np.ndarray:
             g = sum(
                 a * np.exp(-p["gamma"] * np.sum((row - np.array(sv)) ** 2))
                 for a, sv in zip(p["dual_coef"], p["support_vectors"])
-            )
+            ) + sum(t * value for t, value in zip(p["trend_coef"], row))
         out[r] = Y_MEAN + Y_SCALE * (g + p["intercept"])
     return out
 
@@ -406,7 +407,7 @@ BAD_FIELDS = [
     ("rbf-nn", "params.width", 0.0, ["params.width", "positive"]),
     ("rbf-nn", "params.width", -0.8, ["params.width", "positive"]),
     ("pso-svr", "params.support_vectors.2", [0.7, -0.3, 1.0], ["params.support_vectors[2]"]),
-    ("pso-svr", "params.support_vectors", [], ["params.support_vectors"]),
+    ("pso-svr", "params.support_vectors", [], ["params.dual_coef"]),  # no vectors is valid; 4 weights are not
     ("pso-svr", "params.support_vectors", [0.1, 0.2], ["params.support_vectors[0]"]),
     ("pso-svr", "params.dual_coef", [0.9, -0.4, 0.3], ["params.dual_coef"]),
     ("pso-svr", "params.dual_coef", [0.9, -0.4, 0.3, -1.0, 2.0], ["params.dual_coef"]),

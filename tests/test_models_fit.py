@@ -148,3 +148,29 @@ def test_a_constant_input_gets_unit_scale() -> None:
     fitted = fit("linear", x, y, groups, QUICK)
     assert fitted.x_scale[2] == 1.0 and fitted.x_scale[0] == pytest.approx(np.std(x[:, 0]))
     assert np.all(np.isfinite(predict_dph(fitted, x)))
+
+
+def test_paper_svr_has_no_trend_and_equals_plain_sklearn_svr() -> None:
+    from sklearn.svm import SVR
+
+    x, y, groups = chamber_rows(90, seed=5)
+    fitted = fit("pso-svr", x, y, groups, FitOptions(particles=6, iterations=4, trend=False, progress=False))
+    assert fitted.params["trend_coef"] == [0.0, 0.0] and fitted.hyperparameters["trend"] == "none"
+    h = fitted.hyperparameters
+    xs, ys = (x - fitted.x_mean) / fitted.x_scale, (y - fitted.y_mean) / fitted.y_scale
+    plain = SVR(kernel="rbf", C=h["C"], epsilon=h["epsilon"], gamma=h["gamma"]).fit(xs, ys)
+    grid = np.random.default_rng(6).uniform(-3.0, 3.0, (300, 2))
+    np.testing.assert_allclose(build_evaluator("pso-svr", fitted.params)(grid), plain.predict(grid), rtol=0, atol=1e-9)
+
+
+def test_trend_carries_a_linear_error_beyond_the_data_where_plain_svr_decays() -> None:
+    from fogd.models.svr import TrendSvr
+
+    rng = np.random.default_rng(7)
+    xs = rng.uniform(-1.0, 1.0, (80, 2))
+    ys = 0.8 * xs[:, 0] - 0.5 * xs[:, 1] + 0.1 * np.sin(3 * xs[:, 0])
+    far = np.array([[1.0, 5.0]])  # five times beyond the calibrated range of the second input
+    truth = 0.8 - 2.5 + 0.1 * np.sin(3.0)
+    error = {trend: abs(TrendSvr(10.0, 0.01, 0.5, trend).fit(xs, ys).predict(far)[0] - truth) for trend in (True, False)}
+    assert error[True] < 0.1
+    assert error[False] > 1.0  # the kernel has decayed to its intercept

@@ -36,6 +36,10 @@ def parser() -> ArgumentParser:
         help="PSO fitness: cv = RMSE on held-out folds (leave-one-run-out, or blocked in time for one run); "
         "train = the paper's RMSE on the training data",
     )  # fmt: skip
+    p.add_argument(
+        "--trend", choices=("linear", "none"), default="linear",
+        help="pso-svr: fit the SVR on top of a linear (IEEE 952) trend, or 'none' for the paper's plain SVR",
+    )  # fmt: skip
     p.add_argument("--particles", type=positive_int, default=60, help="PSO population (paper: 60)")
     p.add_argument("--iterations", type=positive_int, default=100, help="PSO iterations (paper: 100)")
     p.add_argument("--c1", type=non_negative_float, default=2.0, help="PSO cognitive learning factor")
@@ -88,7 +92,7 @@ def body(argv: Sequence[str] | None) -> int:
         reference=_reference(args.reference),
         fit=FitOptions(
             degree=args.degree, particles=args.particles, iterations=args.iterations, c1=args.c1, c2=args.c2,
-            fitness=args.fitness, folds=args.folds, n_jobs=args.jobs, seed=args.seed, progress=not args.quiet,
+            fitness=args.fitness, trend=args.trend == "linear", folds=args.folds, n_jobs=args.jobs, seed=args.seed, progress=not args.quiet,
         ),  # fmt: skip
         name=args.name,
     )

@@ -33,6 +33,7 @@ class FitOptions:
     c1: float = 2.0
     c2: float = 2.0
     fitness: str = "cv"  # "train": the paper's RMSE on the training rows; "cv": RMSE on held-out folds
+    trend: bool = True  # pso-svr: an SVR on top of a linear fit; False is the paper's plain SVR
     folds: int = 5  # contiguous time folds when there is only one run
     n_jobs: int = 1
     seed: int = 0
@@ -84,7 +85,7 @@ def fit(method: str, X: np.ndarray, y: np.ndarray, groups: np.ndarray, options: 
     else:
         result = fit_pso_svr(
             xs, ys, splits, y_scale,
-            fitness=options.fitness, particles=options.particles, iterations=options.iterations,
+            fitness=options.fitness, trend=options.trend, particles=options.particles, iterations=options.iterations,
             c1=options.c1, c2=options.c2, seed=options.seed, n_jobs=options.n_jobs, progress=options.progress,
         )
     return Fitted(
