@@ -172,7 +172,7 @@ def open_output(path: str) -> IO[str]:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         return open(path, "w", newline="\n", encoding="utf-8")
     except OSError as error:
-        raise InputError(f"cannot write {describe_os_error(error)}") from None
+        raise InputError(f"cannot write {path}: {error.strerror or error}") from None
 
 
 def write_csv(path: str, columns: dict[str, np.ndarray], formats: dict[str, str], *, comments: list[str] = ()) -> None:

@@ -205,3 +205,7 @@ def _decimals(resolution_c: float) -> int:
         if abs(scaled - round(scaled)) < 1e-9 * max(1.0, scaled):
             return decimals
     return 6
+
+
+if __name__ == "__main__":
+    sys.exit(main())
