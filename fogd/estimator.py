@@ -18,6 +18,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 TEMP_LSB_C = 2.0**-24
+_INT64_WRAP = 1 << 64
+_INT64_HALF = 1 << 63
 TEMP_LIMIT_C = 1000.0  # |T| above this is not a temperature; callers flag it before it gets here
 
 
@@ -92,6 +94,7 @@ class TempRateEstimator:
         self.window, self.average, self.step = settings.samples(rate_hz)
         self._scale = _scale(rate_hz, self.window, self.average)
         self._ring = np.zeros(self.window + self.step + 1, dtype=np.int64)  # prefix[j] at j % size
+        self._size = self._ring.size
         self._last_prefix = np.zeros(1, dtype=np.int64)  # prefix[count]; an array so sums wrap silently
         self.count = 0  # samples seen
 
@@ -138,3 +141,25 @@ class TempRateEstimator:
         out[old] = self._ring[j[old] % self._ring.size]
         out[~old] = new_prefix[j[~old] - first - 1]
         return out
+
+    def update_one(self, temp_c: float) -> float:
+        """Feed one sample; its rate in C/s. The same float as `update` gives for a 1-element chunk, bit for bit
+        (the same integer sums, in Python ints wrapped to int64), without numpy's per-call overhead."""
+        q = round(temp_c / TEMP_LSB_C)  # the division is exact and round() is half-to-even, as np.rint
+        first = self.count
+        prefix = (self._last_prefix.item(0) + q + _INT64_HALF) % _INT64_WRAP - _INT64_HALF
+        ring, size = self._ring, self._size
+        ring[(first + 1) % size] = prefix
+        self._last_prefix[0] = prefix
+        self.count = first + 1
+        window = self.window
+        if first < window - 1:
+            return 0.0
+        i = first if self.step == 1 else first - (first - (window - 1)) % self.step
+        average = self.average
+        at = ring.item
+        difference = (at((i + 1) % size) - at((i + 1 - average) % size)) - (
+            at((i - window + 1 + average) % size) - at((i - window + 1) % size)
+        )
+        difference = (difference + _INT64_HALF) % _INT64_WRAP - _INT64_HALF  # the int64 the batch form ends with
+        return float(difference) * self._scale

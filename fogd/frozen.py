@@ -7,18 +7,37 @@ scales them, and evaluates one of the method evaluators below in the scaled spac
     y_dph = y_mean + y_scale * g((clamp(x) - x_mean) / x_scale)
 
 Each evaluator's parameters are exactly what the model file stores under `params`.
+
+`FrozenModel.predict_one` is the per-sample form for one input row of Python floats: the same clamp, scaling
+and sums in plain Python (each evaluator's `point`), because numpy's per-call overhead dominates one row. It
+agrees with `predict` to rounding (sums in another order, `math.exp` for numpy's exp), far inside 1e-12
+relative; large kernel models go through numpy instead, one row at a time (`POINT_NUMPY_TERMS`).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 
 from fogd.inputs import InputSpec
 
 _CHUNK_ROWS = 4096  # kernel evaluations in blocks, so memory stays bounded on million-row replays
+# Above this many kernel terms one row is cheaper through numpy than a Python loop (tools/bench_point.py)
+POINT_NUMPY_TERMS = 24
+
+
+def _floats(values: np.ndarray) -> tuple:
+    return tuple(np.asarray(values, dtype=np.float64).tolist())
+
+
+def _point_dot(xs: Sequence[float], weights: tuple) -> float:
+    total = 0.0
+    for x, w in zip(xs, weights):
+        total += x * w
+    return total
 
 
 def _row_dot(rows: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -37,6 +56,12 @@ class Linear:
     def __call__(self, xs: np.ndarray) -> np.ndarray:
         return _row_dot(xs, self.coef) + self.intercept
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_coef", _floats(self.coef))
+
+    def point(self, xs: Sequence[float]) -> float:
+        return _point_dot(xs, self._coef) + self.intercept
+
 
 @dataclass(frozen=True)
 class Polynomial:
@@ -52,14 +77,75 @@ class Polynomial:
             terms *= xs[:, column : column + 1] ** self.powers[:, column]
         return _row_dot(terms, self.coef) + self.intercept
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_point_terms", tuple(zip(self.powers.tolist(), _floats(self.coef))))
+
+    def point(self, xs: Sequence[float]) -> float:
+        total = 0.0
+        for powers, coef in self._point_terms:
+            term = 1.0
+            for x, power in zip(xs, powers):
+                term *= x**power
+            total += term * coef
+        return total + self.intercept
+
+
+class _GaussianPoint:
+    """sum_k weights_k exp(-gamma ||x - centre_k||^2) for one row: a Python loop for a few centres, else numpy
+    a column at a time (the same operations as the array path, without its (rows, centres, inputs) temporaries)."""
+
+    def __init__(self, centres: np.ndarray, weights: np.ndarray, gamma: float) -> None:
+        self.neg_gamma = -gamma
+        self.use_numpy = len(centres) > POINT_NUMPY_TERMS
+        self.columns = tuple(np.ascontiguousarray(centres[:, j]) for j in range(centres.shape[1]))
+        self.weights = np.ascontiguousarray(weights)
+        self.terms = tuple(zip(centres.tolist(), _floats(weights)))
+
+    def __call__(self, xs: Sequence[float]) -> float:
+        if self.use_numpy:
+            squared = None
+            for column, x in zip(self.columns, xs):
+                difference = column - x
+                difference *= difference
+                if squared is None:
+                    squared = difference
+                else:
+                    squared += difference
+            squared *= self.neg_gamma
+            return float(np.dot(np.exp(squared, out=squared), self.weights))
+        neg_gamma, exp = self.neg_gamma, math.exp
+        total = 0.0
+        if len(xs) == 2:
+            x0, x1 = xs
+            for (c0, c1), weight in self.terms:
+                d0, d1 = x0 - c0, x1 - c1
+                total += weight * exp(neg_gamma * (d0 * d0 + d1 * d1))
+            return total
+        for centre, weight in self.terms:
+            squared = 0.0
+            for x, c in zip(xs, centre):
+                squared += (x - c) * (x - c)
+            total += weight * exp(neg_gamma * squared)
+        return total
+
 
 def _gaussian_sum(xs: np.ndarray, centres: np.ndarray, weights: np.ndarray, gamma: float) -> np.ndarray:
     """sum_k weights_k exp(-gamma ||x - centre_k||^2) per row, in bounded-memory chunks."""
     out = np.empty(xs.shape[0])
     for start in range(0, xs.shape[0], _CHUNK_ROWS):
         block = xs[start : start + _CHUNK_ROWS]
-        squared = ((block[:, None, :] - centres[None, :, :]) ** 2).sum(axis=2)
-        out[start : start + _CHUNK_ROWS] = _row_dot(np.exp(-gamma * squared), weights)
+        # ((block[:, None, :] - centres) ** 2).sum(axis=2), a column at a time: the same sums in the same
+        # order, without the (rows, centres, inputs) temporary
+        squared = np.zeros((block.shape[0], centres.shape[0])) if centres.shape[1] == 0 else None
+        for column in range(centres.shape[1]):
+            difference = block[:, column : column + 1] - centres[:, column]
+            np.multiply(difference, difference, out=difference)
+            if squared is None:
+                squared = difference
+            else:
+                squared += difference
+        squared *= -gamma
+        out[start : start + _CHUNK_ROWS] = _row_dot(np.exp(squared, out=squared), weights)
     return out
 
 
@@ -74,6 +160,12 @@ class RbfNetwork:
 
     def __call__(self, xs: np.ndarray) -> np.ndarray:
         return _gaussian_sum(xs, self.centres, self.coef, 0.5 / self.width**2) + self.intercept
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_point", _GaussianPoint(self.centres, self.coef, 0.5 / self.width**2))
+
+    def point(self, xs: Sequence[float]) -> float:
+        return self._point(xs) + self.intercept
 
 
 @dataclass(frozen=True)
@@ -91,8 +183,42 @@ class Svr:
         kernel = _gaussian_sum(xs, self.support_vectors, self.dual_coef, self.gamma)
         return _row_dot(xs, self.trend_coef) + kernel + self.intercept
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_point", _GaussianPoint(self.support_vectors, self.dual_coef, self.gamma))
+        object.__setattr__(self, "_trend", _floats(self.trend_coef))
+
+    def point(self, xs: Sequence[float]) -> float:
+        return _point_dot(xs, self._trend) + self._point(xs) + self.intercept
+
 
 Evaluator = Callable[[np.ndarray], np.ndarray]
+_UNIQUE_MIN_ROWS = 64
+
+
+def unique_rows(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(distinct rows, index of each row of x among them), rows compared bit for bit (-0.0 is not 0.0).
+
+    Runs of equal consecutive rows are collapsed first (cheap, and most repeats are consecutive), then the
+    runs' rows are sorted, which is much faster than np.unique(axis=0) on the whole array."""
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    n = x.shape[0]
+    if n == 0:
+        return x, np.zeros(0, dtype=np.intp)
+    bits = x.view(np.int64)
+    change = np.empty(n, dtype=bool)
+    change[0] = True
+    np.any(bits[1:] != bits[:-1], axis=1, out=change[1:])
+    starts = np.flatnonzero(change)
+    run_of_row = np.cumsum(change) - 1
+    firsts = bits[starts]
+    order = np.lexsort(firsts.T[::-1]) if x.shape[1] else np.arange(starts.size)
+    ordered = firsts[order]
+    new = np.empty(starts.size, dtype=bool)
+    new[0] = True
+    np.any(ordered[1:] != ordered[:-1], axis=1, out=new[1:])
+    distinct_of_run = np.empty(starts.size, dtype=np.intp)
+    distinct_of_run[order] = np.cumsum(new) - 1
+    return x[starts[order[new]]], distinct_of_run[run_of_row]
 
 
 @dataclass(frozen=True)
@@ -116,7 +242,42 @@ class FrozenModel:
         x = np.asarray(x, dtype=np.float64).reshape(-1, len(self.inputs))
         clamped_x = np.clip(x, self.domain_min, self.domain_max)
         clamped = np.any(clamped_x != x, axis=1)
+        if len(clamped_x) >= _UNIQUE_MIN_ROWS and isinstance(self.evaluator, (Polynomial, Svr, RbfNetwork)):
+            # Exact: a row's result depends on that row alone, and quantised temperatures (and the rates eq. 16
+            # makes of them) repeat, so a million-row replay holds a few ten thousand distinct rows.
+            rows, inverse = unique_rows(clamped_x)
+            return self.predict_unclamped(rows)[inverse], clamped
         return self.predict_unclamped(clamped_x), clamped
+
+    def predict_one(self, x: Sequence[float]) -> tuple[float, bool]:
+        """`predict` for one row of Python floats: (thermal error in deg/h, True if an input was clamped)."""
+        point = getattr(self.evaluator, "point", None)
+        if point is None:  # a plain callable evaluator: the array path
+            comp, clamped = self.predict(np.asarray(x, dtype=np.float64))
+            return float(comp[0]), bool(clamped[0])
+        x = tuple(x)
+        last = self.__dict__.get("_last_point")
+        if last is not None and last[0] == x:  # quantised inputs repeat sample after sample: exact reuse
+            return last[1]
+        clamped = False
+        xs = []
+        for value, low, high, mean, scale in zip(x, *self._point_constants()):
+            used = low if value < low else high if value > high else value  # np.clip; NaN stays NaN
+            if used != value:
+                clamped = True
+            xs.append((used - mean) / scale)
+        result = (self.y_mean + self.y_scale * point(xs), clamped)
+        if not clamped:  # (NaN inputs count as clamped, so a remembered row never holds one)
+            object.__setattr__(self, "_last_point", (x, result))
+        return result
+
+    def _point_constants(self) -> tuple[tuple, ...]:
+        constants = self.__dict__.get("_constants")
+        if constants is None:
+            constants = tuple(_floats(np.broadcast_to(array, (len(self.inputs),))) for array in (
+                self.domain_min, self.domain_max, self.x_mean, self.x_scale))  # fmt: skip
+            object.__setattr__(self, "_constants", constants)
+        return constants
 
     def predict_unclamped(self, x: np.ndarray) -> np.ndarray:
         """The thermal error in deg/h with no domain guard (for comparisons with scikit-learn)."""

@@ -1,0 +1,177 @@
+"""The fast paths give the very results of the paths they stand in for: the scalar estimator update (bit for
+bit), the per-point model evaluation (to 1e-12), the distinct-row reuse and the column-wise kernel sums in
+batch evaluation (bit for bit), and the CSV reader (bit for bit against numpy's)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from fogd import frozen
+from fogd.estimator import EstimatorSettings, TempRateEstimator, temp_rate_batch
+from fogd.frozen import FrozenModel, Linear, Polynomial, RbfNetwork, Svr, unique_rows
+from fogd.inputs import default_inputs
+from fogd.runio import read_run
+
+
+def chamber_temps(n: int, seed: int) -> np.ndarray:
+    """Quantised (0.0625 C) sensor readings held for several samples, like the simulator's."""
+    rng = np.random.default_rng(seed)
+    drift = 20 + np.cumsum(rng.normal(0.0, 0.02, n // 5 + 1))
+    return np.round(np.repeat(drift, 5)[:n] / 0.0625) * 0.0625
+
+
+# -- the scalar estimator update ------------------------------------------------------------------------------
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    temps=st.lists(st.floats(-100, 200, allow_nan=False), min_size=1, max_size=200),
+    window=st.integers(2, 40),
+    average=st.integers(1, 10),
+    step=st.integers(1, 7),
+    chunks=st.lists(st.integers(0, 30), max_size=10),
+)
+def test_update_one_is_bit_identical_to_update_and_batch(temps, window, average, step, chunks):
+    rate_hz = 10.0
+    average = min(average, window // 2) or 1
+    spec = EstimatorSettings(window / rate_hz, average / rate_hz, step / rate_hz if step > 1 else 0.0)
+    temp_c = np.array(temps)
+    one = TempRateEstimator(spec, rate_hz)
+    scalar = np.array([one.update_one(value) for value in temp_c.tolist()])
+    assert scalar.tobytes() == temp_rate_batch(temp_c, spec, rate_hz).tobytes()
+    # mixed: chunks through update, single samples through update_one, on one estimator
+    mixed, pieces, start = TempRateEstimator(spec, rate_hz), [], 0
+    for size in chunks:
+        pieces.append(mixed.update(temp_c[start : start + size]))
+        start += size
+        if start < temp_c.size:
+            pieces.append(np.array([mixed.update_one(float(temp_c[start]))]))
+            start += 1
+    pieces.append(mixed.update(temp_c[start:]))
+    assert np.concatenate(pieces).tobytes() == scalar.tobytes()
+
+
+def test_update_one_after_wraparound_and_reset():
+    spec = EstimatorSettings(window_s=2.0, average_s=0.5)
+    temp_c = chamber_temps(5000, 1)
+    batch = temp_rate_batch(temp_c, spec, 20.0)
+    estimator = TempRateEstimator(spec, 20.0)
+    estimator.update_one(21.0)
+    estimator.reset()
+    estimator._ring[:] = estimator._last_prefix[0] = np.iinfo(np.int64).max - 5  # prefix sums wrap at once
+    got = np.array([estimator.update_one(value) for value in temp_c.tolist()])
+    assert got.tobytes() == batch.tobytes()
+
+
+# -- per-point model evaluation --------------------------------------------------------------------------------
+
+
+def model(evaluator, d: int = 2) -> FrozenModel:
+    return FrozenModel(
+        method="test", inputs=default_inputs()[:d], x_mean=np.array([20.0, 0.001])[:d], x_scale=np.array([15.0, 0.004])[:d],
+        y_mean=0.3, y_scale=0.08, domain_min=np.array([-10.0, -0.01])[:d], domain_max=np.array([50.0, 0.01])[:d],
+        evaluator=evaluator,
+    )  # fmt: skip
+
+
+def evaluators(rng: np.random.Generator) -> dict[str, object]:
+    powers = np.array([(i, j) for total in range(1, 6) for i in range(total, -1, -1) for j in [total - i]])
+    return {
+        "linear": Linear(rng.normal(size=2), 0.1),
+        "ls-poly": Polynomial(powers, rng.normal(size=len(powers)), -0.2),
+        "rbf-nn": RbfNetwork(rng.normal(size=(12, 2)), 0.7, rng.normal(size=12), 0.05),
+        "svr-small": Svr(rng.normal(size=(8, 2)), rng.normal(size=8) * 50, 0.3, rng.normal(size=2), 0.4),
+        "svr-large": Svr(rng.normal(size=(300, 2)), rng.normal(size=300) * 50, 2.0, np.zeros(2), -0.4),
+        "svr-none": Svr(np.zeros((0, 2)), np.zeros(0), 0.5, np.array([0.3, -0.1]), 0.0),
+    }
+
+
+@pytest.mark.parametrize("name", ["linear", "ls-poly", "rbf-nn", "svr-small", "svr-large", "svr-none"])
+def test_predict_one_equals_predict(name):
+    rng = np.random.default_rng(3)
+    frozen_model = model(evaluators(rng)[name])
+    x = np.column_stack((rng.uniform(-20, 60, 500), rng.uniform(-0.02, 0.02, 500)))  # some rows clamped
+    x[:50] = x[50]  # repeats (the memo)
+    x[60] = [np.nan, 0.0]
+    x[61] = [-0.0, 0.0]
+    want, want_clamped = frozen_model.predict(x)
+    got = [frozen_model.predict_one(row) for row in x.tolist()]
+    values = np.array([value for value, _ in got])
+    np.testing.assert_allclose(values, want, rtol=1e-12, atol=1e-12 * np.max(np.abs(want[np.isfinite(want)])), equal_nan=True)
+    assert [flag for _, flag in got] == want_clamped.tolist()
+
+
+def test_predict_one_with_a_plain_callable_evaluator():
+    frozen_model = model(lambda xs: xs.sum(axis=1))
+    value, clamped = frozen_model.predict_one((100.0, 0.0))
+    want, want_clamped = frozen_model.predict(np.array([[100.0, 0.0]]))
+    assert value == want[0] and clamped == want_clamped[0]
+
+
+# -- batch evaluation: column-wise kernel sums and distinct-row reuse ------------------------------------------
+
+
+def reference_gaussian_sum(xs, centres, weights, gamma):
+    """fogd.frozen._gaussian_sum as first written: one (rows, centres, inputs) temporary per block."""
+    out = np.empty(xs.shape[0])
+    for start in range(0, xs.shape[0], 4096):
+        block = xs[start : start + 4096]
+        squared = ((block[:, None, :] - centres[None, :, :]) ** 2).sum(axis=2)
+        out[start : start + 4096] = frozen._row_dot(np.exp(-gamma * squared), weights)
+    return out
+
+
+@pytest.mark.parametrize("d", [1, 2, 3])
+def test_gaussian_sum_is_bit_identical_to_the_first_form(d):
+    rng = np.random.default_rng(d)
+    xs, centres, weights = rng.normal(size=(9000, d)), rng.normal(size=(57, d)), rng.normal(size=57)
+    got = frozen._gaussian_sum(xs, centres, weights, 0.8)
+    assert got.tobytes() == reference_gaussian_sum(xs, centres, weights, 0.8).tobytes()
+
+
+def test_unique_rows_round_trip_bit_for_bit():
+    rng = np.random.default_rng(0)
+    x = np.round(rng.normal(size=(20000, 2)) * 2) / 4
+    x[10:20] = [-0.0, 0.0]
+    x[20:25] = [0.0, 0.0]
+    x[30] = [np.nan, 1.0]
+    rows, inverse = unique_rows(x)
+    assert rows[inverse].tobytes() == x.tobytes()
+    assert len(rows) == len(np.unique(x.view(np.int64), axis=0))
+
+
+@pytest.mark.parametrize("name", ["ls-poly", "rbf-nn", "svr-small", "svr-large"])
+def test_predict_reusing_distinct_rows_is_bit_identical(name, monkeypatch):
+    rng = np.random.default_rng(5)
+    frozen_model = model(evaluators(rng)[name])
+    temp_c = chamber_temps(30000, 2)
+    x = np.column_stack((temp_c, temp_rate_batch(temp_c, EstimatorSettings(5.0, 0.5), 20.0)))
+    x[100] = [np.nan, 0.0]
+    x[200:210] = [-0.0, 0.0]
+    got, got_clamped = frozen_model.predict(x)
+    monkeypatch.setattr(frozen, "_UNIQUE_MIN_ROWS", 1 << 62)  # every row evaluated
+    want, want_clamped = frozen_model.predict(x)
+    assert got.tobytes() == want.tobytes() and np.array_equal(got_clamped, want_clamped)
+    # and a row's value does not depend on what came with it
+    single = np.concatenate([frozen_model.predict(x[i : i + 1])[0] for i in range(0, 30000, 997)])
+    assert single.tobytes() == got[::997].tobytes()
+
+
+# -- reading runs ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("bom", [False, True])
+def test_read_run_equals_numpy_loadtxt(tmp_path, bom):
+    rng = np.random.default_rng(1)
+    n = 5000
+    table = np.column_stack((np.arange(n) / 100.0, rng.normal(size=n) * 10, 20 + rng.normal(size=n)))
+    text = "t_s,rate_dph,temp_c\n" + "\n".join(f"{t:.6f},{r!r},{c:.17g}" for t, r, c in table.tolist()) + "\n"
+    path = tmp_path / "run.csv"
+    path.write_bytes((b"\xef\xbb\xbf" if bom else b"") + text.encode())
+    run = read_run(path)
+    want = np.loadtxt(path, delimiter=",", skiprows=1, encoding="utf-8-sig")
+    assert np.column_stack((run.t_s, run.rate_dph, run.temp_c)).tobytes() == want.tobytes()
+    assert len(run.sha256) == 64
