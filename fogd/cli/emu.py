@@ -12,33 +12,13 @@ import sys
 from typing import Sequence
 
 from fogd import profiles, protocols
-from fogd.cli.common import ArgumentParser, non_negative_float, positive_float, positive_int, run
+from fogd.cli.common import ArgumentParser, non_negative_float, positive_float, positive_int, probability, run, seed
 from fogd.emulator import Emulator, Faults, RunSource, SimSource
 from fogd.errors import UsageError
 from fogd.runio import read_run
 
 PROG = "fogd-emu"
 DEFAULT_RATE_HZ = 200.0
-
-
-def _probability(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not 0.0 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a probability (0..1)")
-    return value
-
-
-def _seed(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{text} is negative (a seed is a whole number >= 0)")
-    return value
 
 
 def parser() -> ArgumentParser:
@@ -64,7 +44,7 @@ def parser() -> ArgumentParser:
     source.add_argument("--csv", metavar="RUN.csv", help="play a recorded run (columns t_s,rate_dph,temp_c) at its own rate (see --speed)")
     add("--rate-hz", metavar="HZ", type=positive_float,
         help=f"sample rate for --profile, 1..5000 Hz (default: {DEFAULT_RATE_HZ:g})")
-    add("--seed", metavar="N", type=_seed, help="simulator seed for --profile (default: 1)")
+    add("--seed", metavar="N", type=seed, help="simulator seed for --profile (default: 1)")
     add("--temp-rate-hz", metavar="HZ", type=positive_float, default=10.0,
         help="fogd protocol: temperature frames per second, at most the sample rate (default: 10)")
     pacing = p.add_mutually_exclusive_group()
@@ -85,19 +65,19 @@ def parser() -> ArgumentParser:
     add("--ledger", metavar="PATH.jsonl", help="write one JSON line per frame: what was sent and injected")
     faults = p.add_argument_group("faults (probabilities per frame, 0..1; all drawn from --fault-seed)")
     fault = faults.add_argument
-    fault("--garbage", metavar="P", type=_probability, default=0.0, help="1..16 random bytes before a frame (ascii: a non-ASCII line)")
-    fault("--bitflip", metavar="P", type=_probability, default=0.0, help="flip one bit (a bad CRC)")
-    fault("--drop", metavar="P", type=_probability, default=0.0, help="drop a frame (a sequence gap)")
-    fault("--repeat", metavar="P", type=_probability, default=0.0, help="send a frame twice")
-    fault("--nan", metavar="P", type=_probability, default=0.0, help="NaN rate, with a good CRC")
-    fault("--clear-status", metavar="P", type=_probability, default=0.0,
+    fault("--garbage", metavar="P", type=probability, default=0.0, help="1..16 random bytes before a frame (ascii: a non-ASCII line)")
+    fault("--bitflip", metavar="P", type=probability, default=0.0, help="flip one bit (a bad CRC)")
+    fault("--drop", metavar="P", type=probability, default=0.0, help="drop a frame (a sequence gap)")
+    fault("--repeat", metavar="P", type=probability, default=0.0, help="send a frame twice")
+    fault("--nan", metavar="P", type=probability, default=0.0, help="NaN rate, with a good CRC")
+    fault("--clear-status", metavar="P", type=probability, default=0.0,
           help="clear a gyro-valid status bit (kvh-a: x, y or z; fogd: z)")
-    fault("--split", metavar="P", type=_probability, default=0.0, help="cut a frame in two writes, 2 ms apart")
+    fault("--split", metavar="P", type=probability, default=0.0, help="cut a frame in two writes, 2 ms apart")
     fault("--unplug-every-s", metavar="S", type=positive_float,
           help="after S seconds connected, close the pty (the device vanishes), then open a new one")
     fault("--unplug-for-s", metavar="D", type=non_negative_float, default=1.0,
           help="seconds unplugged; frames due meanwhile are lost (default: 1)")
-    fault("--fault-seed", metavar="N", type=_seed, default=0, help="seed for every fault (default: 0)")
+    fault("--fault-seed", metavar="N", type=seed, default=0, help="seed for every fault (default: 0)")
     return p
 
 

@@ -12,11 +12,11 @@ import math
 import os
 import sys
 import time
-from typing import NoReturn
 
 import numpy as np
 
 from fogd import profiles
+from fogd.cli.common import ArgumentParser, number_in, seed
 from fogd.errors import FogdError, UsageError
 from fogd.runio import write_csv
 from fogd.simulator import MAX_RATE_HZ, MIN_RATE_HZ, SimParams, Simulation
@@ -25,49 +25,9 @@ PROG = "fogd-sim"
 DEFAULTS = SimParams()
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse that raises UsageError (one line) instead of printing usage and exiting."""
-
-    def error(self, message: str) -> NoReturn:
-        raise UsageError(f"{message} (see {PROG} --help)")
-
-
-def _bounded(low: float, high: float, unit: str):
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-        if not (math.isfinite(value) and low <= value <= high):
-            raise argparse.ArgumentTypeError(f"{text} is outside {low:g}..{high:g} {unit}")
-        return value
-
-    return parse
-
-
-def _positive(unit: str):
-    def parse(text: str) -> float:
-        value = _bounded(0.0, math.inf, unit)(text)
-        if value == 0:
-            raise argparse.ArgumentTypeError(f"{text} must be greater than 0 {unit}")
-        return value
-
-    return parse
-
-
-def _seed(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{text} is negative (a seed is a whole number >= 0)")
-    return value
-
-
 def _parser() -> argparse.ArgumentParser:
     builtins = "\n".join(f"  {name:16s} {profiles.summary(name)}" for name in profiles.names())
-    parser = _Parser(
+    parser = ArgumentParser(
         prog=PROG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Simulate a fibre-optic gyro in a thermal chamber and write the run as CSV with columns\n"
@@ -80,19 +40,19 @@ def _parser() -> argparse.ArgumentParser:
     add = parser.add_argument
     add("--profile", metavar="NAME|FILE", help="a built-in profile name or a YAML profile file (required)")
     add("-o", "--output", metavar="PATH", help="CSV file to write, '-' for stdout (required)")
-    add("--rate-hz", metavar="HZ", type=_bounded(MIN_RATE_HZ, MAX_RATE_HZ, "Hz"), default=200.0,
+    add("--rate-hz", metavar="HZ", type=number_in(MIN_RATE_HZ, MAX_RATE_HZ, "Hz"), default=200.0,
         help=f"gyro output rate, {MIN_RATE_HZ:g}..{MAX_RATE_HZ:g} Hz (default: 200)")
-    add("--seed", metavar="N", type=_seed, default=1, help="random seed; the same seed gives the same file (default: 1)")
-    add("--sensor-resolution-c", metavar="C", type=_positive("C"), default=DEFAULTS.sensor_resolution_c,
+    add("--seed", metavar="N", type=seed, default=1, help="random seed; the same seed gives the same file (default: 1)")
+    add("--sensor-resolution-c", metavar="C", type=number_in(0.0, math.inf, "C", low_open=True), default=DEFAULTS.sensor_resolution_c,
         help=f"temperature sensor quantum, C (default: {DEFAULTS.sensor_resolution_c:g}, a DS18B20; "
         "1 for whole degrees)")
-    add("--sensor-rate-hz", metavar="HZ", type=_positive("Hz"), default=DEFAULTS.sensor_rate_hz,
+    add("--sensor-rate-hz", metavar="HZ", type=number_in(0.0, math.inf, "Hz", low_open=True), default=DEFAULTS.sensor_rate_hz,
         help=f"temperature sensor update rate, Hz; held between updates (default: {DEFAULTS.sensor_rate_hz:g})")
-    add("--arw-dpsh", metavar="DPSH", type=_bounded(0.0, 10.0, "deg/sqrt(h)"), default=DEFAULTS.arw_dpsh,
+    add("--arw-dpsh", metavar="DPSH", type=number_in(0.0, 10.0, "deg/sqrt(h)"), default=DEFAULTS.arw_dpsh,
         help=f"angle random walk, deg/sqrt(h) (default: {DEFAULTS.arw_dpsh:g})")
-    add("--bias-instability-dph", metavar="DPH", type=_bounded(0.0, 100.0, "deg/h"), default=DEFAULTS.bias_instability_dph,
+    add("--bias-instability-dph", metavar="DPH", type=number_in(0.0, 100.0, "deg/h"), default=DEFAULTS.bias_instability_dph,
         help=f"bias instability, deg/h (default: {DEFAULTS.bias_instability_dph:g})")
-    add("--latitude-deg", metavar="DEG", type=_bounded(-90.0, 90.0, "deg"), default=DEFAULTS.latitude_deg,
+    add("--latitude-deg", metavar="DEG", type=number_in(-90.0, 90.0, "deg"), default=DEFAULTS.latitude_deg,
         help=f"latitude for the Earth rate on the vertical sensing axis, deg (default: {DEFAULTS.latitude_deg:g})")
     add("--no-noise", action="store_true",
         help="no ARW, bias instability, turn-on bias or sensor noise (Earth rate and quantisation stay)")
