@@ -21,6 +21,7 @@ TEMP_LSB_C = 2.0**-24
 _INT64_WRAP = 1 << 64
 _INT64_HALF = 1 << 63
 TEMP_LIMIT_C = 1000.0  # |T| above this is not a temperature; callers flag it before it gets here
+SCALAR_CHUNK = 16  # chunks up to this size go through `update_one`, which gives the same floats faster
 
 
 @dataclass(frozen=True)
@@ -111,7 +112,12 @@ class TempRateEstimator:
 
     def update(self, temp_c: np.ndarray) -> np.ndarray:
         """Feed the next samples; returns their rates in C/s (0.0 where the window is not yet full)."""
-        q = quantise(np.atleast_1d(temp_c))
+        temp_c = np.atleast_1d(temp_c)
+        if temp_c.size <= SCALAR_CHUNK:  # a few samples (the daemon's usual batch): numpy's overhead would dominate
+            values = np.asarray(temp_c, dtype=np.float64).ravel().tolist()
+            if all(-TEMP_LIMIT_C <= value <= TEMP_LIMIT_C for value in values):  # (NaN is not)
+                return np.array([self.update_one(value) for value in values], dtype=np.float64)
+        q = quantise(temp_c)
         k = q.size
         first = self.count  # index of the first new sample
         new_prefix = np.cumsum(q) + self._last_prefix[0]  # prefix[first + 1 .. first + k]
