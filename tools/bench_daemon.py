@@ -1,0 +1,401 @@
+"""The real `fogd` process over pty loopback, against a do-nothing relay (tools/bench_relay.py) on the same ptys.
+
+A harness writes KVH Format A frames (sequence 0..127, valid z rate, whole-degree temperature) to the master
+of one pty, whose slave is the process's --port, and reads the process's output from the master of another
+pty, whose slave is its --out (fogd: --protocol kvh-a --out-format same, the bundled demo model). One
+select() loop does both, so writing and reading timestamps share one clock and no thread.
+  (a) throughput: the rate steps up (5k .. 80k frames/s, a few seconds each); loss = frames written - frames
+      read back once the output has gone quiet, plus sequence breaks in what came back. The highest step
+      reached (>= 95% of the asked rate) with zero loss is the maximum sustained rate. Target >= 20,000/s.
+  (b) latency at 1,000 frames/s: from the return of the write of a frame's last byte to the read that
+      completes the output frame; p50 and p99. Target p99 < 1 ms and < 2x the relay's p99.
+  (c) CPU seconds per second (utime + stime from /proc/<pid>/stat) at 200 and 1,000 frames/s.
+  (d) peak RSS (VmHWM, /proc/<pid>/status); target < 80 MB; and whether any scikit-learn file is mapped
+      into the daemon (/proc/<pid>/maps): it must never import it.
+
+Usage: python tools/bench_daemon.py [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import select
+import signal
+import subprocess
+import sys
+import time
+import tty
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from bench_common import machine, print_table, verdict
+from fogd.protocols.base import ALL_AXES, Frame
+from fogd.protocols.kvh import HEADER_A, KvhProtocol
+
+FRAME_BYTES = 36
+SEQ_OFFSET = 29
+TICK_S = 0.001
+DEMO_MODEL = Path(__file__).resolve().parent.parent / "fogd" / "data" / "demo-model.json"
+RELAY = Path(__file__).resolve().parent / "bench_relay.py"
+CLK_TCK = os.sysconf("SC_CLK_TCK")
+TARGET_RATE = 20_000
+TARGET_P99_S = 1e-3
+TARGET_RSS_MB = 80.0
+
+
+def frame_cycle() -> bytes:
+    """128 Format A frames, sequence 0..127, a slowly varying z rate and temperature."""
+    protocol = KvhProtocol()
+    frames = []
+    for seq in range(128):
+        rates = (1.0, -2.0, 15.0 + 0.01 * seq)
+        frames.append(protocol.encode(Frame("kvh-a", "imu", "A", seq, None, rates, ALL_AXES, ALL_AXES, 20.0 + seq // 64)))
+    return b"".join(frames)
+
+
+class Pty:
+    """A pty whose slave a process opens by path; the harness keeps the slave open too, in raw mode."""
+
+    def __init__(self) -> None:
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)
+        tty.setraw(self.master)
+        self.path = os.ttyname(self.slave)
+        os.set_blocking(self.master, False)
+
+    def close(self) -> None:
+        os.close(self.master)
+        os.close(self.slave)
+
+
+@dataclass
+class Step:
+    asked_hz: float
+    seconds: float
+    written: int = 0
+    read: int = 0
+    breaks: int = 0
+    bad_headers: int = 0
+    elapsed_s: float = 0.0
+    cpu_s: float = 0.0
+    latencies_s: list[float] = field(default_factory=list)
+
+    @property
+    def achieved_hz(self) -> float:
+        return self.written / self.elapsed_s if self.elapsed_s else 0.0
+
+    @property
+    def loss(self) -> int:
+        return self.written - self.read + self.breaks
+
+
+class Harness:
+    """One process under test between two ptys, driven by one select() loop."""
+
+    def __init__(self, label: str, command_for) -> None:
+        self.label = label
+        self.gyro, self.out = Pty(), Pty()
+        self.cycle = frame_cycle()
+        self.next_seq = 0  # sequence of the next frame written
+        self.expect_seq: int | None = None  # sequence of the next frame expected back
+        self.buffer = bytearray()
+        self._read_times: list[tuple[int, float]] = []  # (index of the frame among those read, time of the read)
+        self.process = subprocess.Popen(command_for(self.gyro.path, self.out.path), stdout=subprocess.DEVNULL,
+                                        stderr=subprocess.PIPE)  # fmt: skip
+
+    def cpu_s(self) -> float:
+        fields = Path(f"/proc/{self.process.pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / CLK_TCK  # utime, stime (fields 14, 15)
+
+    def status(self, key: str) -> str:
+        for line in Path(f"/proc/{self.process.pid}/status").read_text().splitlines():
+            if line.startswith(key + ":"):
+                return line.split(":", 1)[1].strip()
+        return "?"
+
+    def maps_sklearn(self) -> bool:
+        return "sklearn" in Path(f"/proc/{self.process.pid}/maps").read_text()
+
+    def warm_up(self, timeout_s: float = 20.0) -> None:
+        """Frames at 100/s until the first comes back (the process is up and has opened both ports), then quiet."""
+        deadline = time.monotonic() + timeout_s
+        probe = Step(100.0, 0.0)
+        while probe.read == 0:
+            if time.monotonic() > deadline or self.process.poll() is not None:
+                raise SystemExit(f"{self.label}: no output within {timeout_s:g} s: {self.stop()}")
+            self.run(Step(100.0, 0.1), into=probe)
+        self.drain(probe)
+
+    def run(self, step: Step, *, latency: bool = False, into: Step | None = None) -> Step:
+        """Write at step.asked_hz for step.seconds while reading; then wait for the output to go quiet."""
+        target = into or step
+        pending = bytearray()
+        write_times: list[tuple[int, float]] = []  # (index of the frame among those written, time its last byte went)
+        cpu0 = self.cpu_s()
+        start = time.perf_counter()
+        end = start + step.seconds
+        sent = bytes_done = 0
+        while True:
+            now = time.perf_counter()
+            if now >= end and not pending:
+                break
+            due = min(int((now - start) * step.asked_hz) + 1, int(step.seconds * step.asked_hz)) - sent
+            if due > 0 and not pending:
+                pending += self._frames(due)
+                sent += due
+            if pending:
+                try:
+                    written = os.write(self.gyro.master, pending)
+                except BlockingIOError:
+                    written = 0
+                if written:
+                    del pending[:written]
+                    done_before = bytes_done // FRAME_BYTES
+                    bytes_done += written
+                    whole = bytes_done // FRAME_BYTES - done_before
+                    if latency:
+                        stamp = time.perf_counter()
+                        write_times.extend((target.written + i, stamp) for i in range(whole))
+                    target.written += whole
+            wait = 0.0 if pending and due > 0 else max(0.0, min(TICK_S, (start + (sent / step.asked_hz)) - time.perf_counter()))
+            writable = [self.gyro.master] if pending else []
+            readable, _, _ = select.select([self.out.master], writable, [], wait)
+            if readable:
+                self._read(target, latency)
+        target.elapsed_s += time.perf_counter() - start
+        self.drain(target, latency=latency)
+        target.cpu_s += self.cpu_s() - cpu0
+        if latency:
+            reads = dict(self._read_times)
+            target.latencies_s.extend(reads[i] - t for i, t in write_times if i in reads)
+        return target
+
+    def _frames(self, count: int) -> bytes:
+        start = self.next_seq
+        self.next_seq = (start + count) % 128
+        reps = math.ceil((start + count) / 128)
+        return (self.cycle * reps)[start * FRAME_BYTES : (start + count) * FRAME_BYTES]
+
+    def _read(self, step: Step, latency: bool) -> None:
+        try:
+            data = os.read(self.out.master, 1 << 16)
+        except (BlockingIOError, OSError):
+            return
+        stamp = time.perf_counter()
+        self.buffer += data
+        whole = len(self.buffer) // FRAME_BYTES
+        if not whole:
+            return
+        frames = np.frombuffer(bytes(self.buffer[: whole * FRAME_BYTES]), dtype=np.uint8).reshape(whole, FRAME_BYTES)
+        del self.buffer[: whole * FRAME_BYTES]
+        headers_ok = np.all(frames[:, :4] == np.frombuffer(HEADER_A, dtype=np.uint8), axis=1)
+        step.bad_headers += int(np.count_nonzero(~headers_ok))
+        seqs = frames[:, SEQ_OFFSET].astype(np.int64)
+        first = self.expect_seq if self.expect_seq is not None else int(seqs[0])
+        expected = (first + np.arange(whole)) % 128
+        if np.any(seqs != expected):  # count the breaks and follow the stream from there
+            step.breaks += int(np.count_nonzero(np.diff(np.concatenate(([first - 1], seqs))) % 128 != 1))
+        self.expect_seq = int(seqs[-1] + 1) % 128
+        if latency:
+            self._read_times.extend((step.read + i, stamp) for i in range(whole))
+        step.read += whole
+
+    def drain(self, step: Step, *, latency: bool = False, quiet_s: float = 0.5) -> None:
+        last = time.perf_counter()
+        while time.perf_counter() - last < quiet_s and step.read < step.written:
+            readable, _, _ = select.select([self.out.master], [], [], 0.05)
+            if readable:
+                self._read(step, latency)
+                last = time.perf_counter()
+        # anything still on its way after the quiet time is counted as lost
+
+    def stop(self) -> str:
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGTERM)
+        try:
+            _, stderr = self.process.communicate(timeout=10)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            _, stderr = self.process.communicate()
+        self.gyro.close()
+        self.out.close()
+        return stderr.decode(errors="replace").strip()[-2000:]
+
+
+def fogd_command(model: str, switch_interval_s: float | None = None):
+    """The real daemon; with `switch_interval_s`, started through sys.setswitchinterval (an experiment: how
+    long a thread that wants the GIL waits for one that computes)."""
+    if switch_interval_s is None:
+        start = ["-m", "fogd.cli.daemon"]
+    else:
+        start = ["-c", f"import sys; sys.setswitchinterval({switch_interval_s!r}); from fogd.cli.daemon import main; "
+                 "sys.argv[0] = 'fogd'; sys.exit(main())"]  # fmt: skip
+
+    def command(port: str, out: str) -> list[str]:
+        return [sys.executable, *start, "--port", port, "--protocol", "kvh-a", "--out", out,
+                "--out-format", "same", "--model", model, "--rate-hz", "1000", "--status-interval-s", "3600", "-q"]  # fmt: skip
+    return command
+
+
+def relay_command(port: str, out: str) -> list[str]:
+    return [sys.executable, str(RELAY), port, out]
+
+
+def measure(label: str, command, rates: list[float], step_s: float, latency_s: float, cpu_s: float) -> dict:
+    harness = Harness(label, command)
+    try:
+        harness.warm_up()
+        latency = harness.run(Step(1000.0, latency_s), latency=True)
+        harness._read_times = []
+        cpu = {hz: harness.run(Step(hz, cpu_s)) for hz in (200.0, 1000.0)}
+        steps = []
+        for hz in rates:
+            steps.append(harness.run(Step(hz, step_s)))
+        result = {
+            "latency": latency, "cpu": cpu, "steps": steps, "rss_mb": _mb(harness.status("VmHWM")),
+            "sklearn": harness.maps_sklearn(),
+        }  # fmt: skip
+    finally:
+        stderr = harness.stop()
+    if harness.process.returncode not in (0, -signal.SIGTERM):
+        print(f"{label} exited {harness.process.returncode}: {stderr}")
+    return result
+
+
+def stage_costs(model_path: str, batch_frames: int, calls: int) -> list[list[object]]:
+    """Microseconds per call of each stage the daemon runs for a batch of `batch_frames` frames, in this process
+    with fogd's own classes (cProfile sees only the daemon's main thread; this splits every thread's work)."""
+    from types import SimpleNamespace
+
+    from fogd import modelfile
+    from fogd.daemon import MAX_BATCH, Daemon
+    from fogd.lexer import Lexer
+    from fogd.outputs import Formatter
+    from fogd.ring import Ring, pack_frames
+
+    protocol = KvhProtocol(comp_axes=(2,))
+    lexer, ring = Lexer(protocol), Ring(1 << 15)
+    daemon = Daemon(reader=SimpleNamespace(ring=ring), writer=None, formatter=None, model=modelfile.load(model_path),
+                    rate_hz=1000.0, axis=2, temp_stale_s=2.0, status_interval_s=3600.0)  # fmt: skip
+    formatter = Formatter("same", protocol, 2)
+    cycle = frame_cycle()
+    data = (cycle * math.ceil(batch_frames / 128 + 1))[: batch_frames * FRAME_BYTES]
+    sink = os.open(os.devnull, os.O_WRONLY)
+    totals = dict.fromkeys(("lexer.feed (decode, CRC)", "ring.pack_frames", "ring push + pop", "Daemon.compensate",
+                            "  of which Compensator.process", "Formatter.encode (same: re-encode, CRC)", "os.write"), 0.0)  # fmt: skip
+    process = daemon.compensator.process
+    process_s = [0.0]
+
+    def timed_process(*a, **k):
+        start = time.perf_counter()
+        try:
+            return process(*a, **k)
+        finally:
+            process_s[0] += time.perf_counter() - start
+
+    daemon.compensator.process = timed_process
+    for _ in range(calls):
+        t0 = time.perf_counter()
+        frames = lexer.feed(data)
+        t1 = time.perf_counter()
+        batch = pack_frames(frames, t1)
+        t2 = time.perf_counter()
+        ring.push(batch)
+        records = ring.pop(MAX_BATCH)
+        t3 = time.perf_counter()
+        out = daemon.compensate(records)
+        t4 = time.perf_counter()
+        chunk = formatter.encode(out)
+        t5 = time.perf_counter()
+        os.write(sink, chunk.data)
+        t6 = time.perf_counter()
+        for key, seconds in zip(list(totals)[:4] + list(totals)[5:], (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4, t6 - t5)):
+            totals[key] += seconds
+    os.close(sink)
+    totals["  of which Compensator.process"] = process_s[0]
+    whole = sum(value for key, value in totals.items() if not key.startswith("  "))
+    return [[key, f"{value / calls * 1e6:.1f}", f"{value / calls / batch_frames * 1e6:.2f}", f"{100 * value / whole:.0f}%"]
+            for key, value in totals.items()]  # fmt: skip
+
+
+def _mb(value: str) -> float:
+    number, _, unit = value.partition(" ")
+    return float(number) / 1024.0 if unit == "kB" else float("nan")
+
+
+def percentile_us(values: list[float], q: float) -> float:
+    return float(np.percentile(values, q)) * 1e6 if values else float("nan")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--strict", action="store_true", help="exit 1 when a target is missed")
+    parser.add_argument("--quick", action="store_true", help="short steps and low rates only (smoke test)")
+    parser.add_argument("--switch-interval-s", type=float, default=None,
+                        help="also run fogd with sys.setswitchinterval(S) (an experiment; Python's default is 0.005)")
+    parser.add_argument("--model", default=str(DEMO_MODEL), help="model file for fogd (default: the bundled demo model)")
+    args = parser.parse_args(argv)
+    if args.quick:
+        rates, step_s, latency_s, cpu_s = [2000.0, 5000.0], 0.5, 0.5, 0.5
+    else:
+        rates, step_s, latency_s, cpu_s = [5000.0, 10000.0, 20000.0, 40000.0, 80000.0], 3.0, 5.0, 5.0
+    print(machine())
+    print(f"fogd: kvh-a in, --out-format same, model {Path(args.model).name}; {step_s:g} s per rate step, "
+          f"{latency_s:g} s of latency at 1000/s, {cpu_s:g} s per CPU rate")  # fmt: skip
+    results = {
+        "fogd": measure("fogd", fogd_command(args.model), rates, step_s, latency_s, cpu_s),
+        "relay": measure("relay", relay_command, rates, step_s, latency_s, cpu_s),
+    }
+    if args.switch_interval_s:
+        label = f"fogd, switch interval {args.switch_interval_s * 1e3:g} ms"
+        results[label] = measure(label, fogd_command(args.model, args.switch_interval_s), rates, step_s, latency_s, cpu_s)
+    rows = []
+    for index, hz in enumerate(rates):
+        row = [f"{hz:,.0f}"]
+        for label in ("fogd", "relay"):
+            step = results[label]["steps"][index]
+            row += [f"{step.achieved_hz:,.0f}", f"{step.written - step.read}", f"{step.breaks}"]
+        rows.append(row)
+    print_table("3a. Sustained rate over pty loopback (frames/s): loss = written - read back; breaks = sequence gaps",
+                ["asked/s", "fogd achieved/s", "fogd lost", "fogd seq breaks", "relay achieved/s", "relay lost",
+                 "relay seq breaks"], rows)  # fmt: skip
+    summary, ok = [], True
+    for label in results:
+        r = results[label]
+        clean = [s.asked_hz for s in r["steps"] if s.loss == 0 and s.bad_headers == 0 and s.achieved_hz >= 0.95 * s.asked_hz]
+        r["max_rate"] = max(clean, default=0.0)
+        lat = r["latency"]
+        r["p99"] = percentile_us(lat.latencies_s, 99)
+        summary.append([
+            label, f"{r['max_rate']:,.0f}", f"{percentile_us(lat.latencies_s, 50):.0f}", f"{r['p99']:.0f}",
+            f"{percentile_us(lat.latencies_s, 100):.0f}", f"{len(lat.latencies_s)}/{lat.written}",
+            f"{100 * r['cpu'][200.0].cpu_s / r['cpu'][200.0].elapsed_s:.1f}%",
+            f"{100 * r['cpu'][1000.0].cpu_s / r['cpu'][1000.0].elapsed_s:.1f}%", f"{r['rss_mb']:.1f}",
+            "yes" if r["sklearn"] else "no",
+        ])  # fmt: skip
+    print_table("3b-d. Latency at 1000 frames/s (us, last input byte written -> output frame read), CPU, memory",
+                ["process", "max zero-loss/s", "p50 us", "p99 us", "max us", "matched frames", "CPU at 200/s",
+                 "CPU at 1000/s", "peak RSS MB", "sklearn mapped"], summary)  # fmt: skip
+    fogd, relay = results["fogd"], results["relay"]
+    checks = [
+        ("max zero-loss rate >= 20,000/s", fogd["max_rate"] >= TARGET_RATE),
+        ("p99 latency < 1 ms", fogd["p99"] < TARGET_P99_S * 1e6),
+        ("p99 latency < 2x relay p99", fogd["p99"] < 2 * relay["p99"]),
+        ("peak RSS < 80 MB", fogd["rss_mb"] < TARGET_RSS_MB),
+        ("no scikit-learn in the daemon", not fogd["sklearn"]),
+    ]
+    for batch in (1, 40):
+        print_table(f"3e. Where the daemon's time goes, batches of {batch} frame(s) (in-process, every thread's stages)",
+                    ["stage", "us per batch", "us per frame", "share"], stage_costs(args.model, batch, 200 if args.quick else 2000))  # fmt: skip
+    for name, good in checks:
+        print(f"  {name}: {verdict(good)}")
+        ok &= good
+    return 1 if args.strict and not ok else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
