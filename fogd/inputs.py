@@ -1,8 +1,14 @@
-"""The model's inputs (temperature, temperature rate) and how they are computed, streaming and in batch.
+"""The model's inputs (temperature, temperature rates, lagged temperatures) and how they are computed,
+streaming and in batch.
 
 An `InputSpec` is what a model file stores about one input, so that serving computes exactly what training
-computed. `InputBank` is the streaming form (O(1) per sample, any chunk size) and `inputs_batch` the batch
-form; both give the same floats bit for bit (the rate estimator works in exact integer sums).
+computed. `InputBank` is the streaming form (O(1) per sample whatever the window lengths and time constants,
+any chunk size) and `inputs_batch` the batch form; both give the same floats bit for bit (the rate estimator
+works in exact integer sums, the lag filter runs one recurrence in both forms).
+
+Kinds: `temp_c` (the held temperature), `temp_rate_cps` (eq. 16 with its window settings; several windows
+may be used at once) and `temp_lag_c` (a first-order lag of the temperature with time constant `tau_s`,
+fogd.lag). `parse_inputs` reads the `fogd-train --inputs` syntax, e.g. `temp,rate@50,rate@300,lag@600`.
 """
 
 from __future__ import annotations
@@ -12,36 +18,93 @@ from dataclasses import dataclass
 import numpy as np
 
 from fogd.estimator import EstimatorSettings, TempRateEstimator, temp_rate_batch
+from fogd.lag import MAX_TAU_S, LagFilter
 
 TEMP = "temp_c"
 TEMP_RATE = "temp_rate_cps"
-KINDS = (TEMP, TEMP_RATE)
+TEMP_LAG = "temp_lag_c"
+KINDS = (TEMP, TEMP_RATE, TEMP_LAG)
+INPUTS_SYNTAX = (
+    "comma-separated inputs: 'temp' (temperature, C), 'rate@W' (eq. 16 temperature rate over a W s window, "
+    "with --average-s and --step-s), 'lag@TAU' (temperature through a first-order lag of time constant TAU s, a "
+    "stand-in for the coil temperature); e.g. temp,rate@50,rate@300,lag@600"
+)
 
 
 @dataclass(frozen=True)
 class InputSpec:
-    """One model input: `temp_c`, or `temp_rate_cps` with its eq. 16 estimator settings."""
+    """One model input: `temp_c`, `temp_rate_cps` with its eq. 16 estimator settings, or `temp_lag_c` with
+    its time constant `tau_s`."""
 
     kind: str
     estimator: EstimatorSettings | None = None
+    tau_s: float | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
             raise ValueError(f"unknown input {self.kind!r}; known inputs: {', '.join(KINDS)}")
         if (self.kind == TEMP_RATE) != (self.estimator is not None):
             raise ValueError(f"input {self.kind!r}: estimator settings go with {TEMP_RATE} only")
+        if (self.kind == TEMP_LAG) != (self.tau_s is not None):
+            raise ValueError(f"input {self.kind!r}: a time constant tau_s goes with {TEMP_LAG} only")
+        if self.tau_s is not None and not 0 < self.tau_s <= MAX_TAU_S:
+            raise ValueError(f"lag time constant must be in (0, {MAX_TAU_S:g}] s, got {self.tau_s}")
 
     @property
     def label(self) -> str:
-        """A short unique name, e.g. 'temp_rate_cps@50s'."""
-        if self.estimator is None:
-            return self.kind
-        return f"{self.kind}@{self.estimator.window_s:g}s"
+        """A short unique name, e.g. 'temp_rate_cps@50s' or 'temp_lag_c@600s'."""
+        if self.estimator is not None:
+            return f"{self.kind}@{self.estimator.window_s:g}s"
+        if self.tau_s is not None:
+            return f"{self.kind}@{self.tau_s:g}s"
+        return self.kind
+
+    @property
+    def short(self) -> str:
+        """The `--inputs` spelling: temp, rate@50, lag@600."""
+        if self.estimator is not None:
+            return f"rate@{self.estimator.window_s:g}"
+        if self.tau_s is not None:
+            return f"lag@{self.tau_s:g}"
+        return "temp"
 
     def to_dict(self) -> dict:
-        if self.estimator is None:
-            return {"kind": self.kind}
-        return {"kind": self.kind, **self.estimator.to_dict()}
+        if self.estimator is not None:
+            return {"kind": self.kind, **self.estimator.to_dict()}
+        if self.tau_s is not None:
+            return {"kind": self.kind, "tau_s": float(self.tau_s)}
+        return {"kind": self.kind}
+
+
+def parse_inputs(text: str, average_s: float = 0.5, step_s: float = 0.0) -> tuple[InputSpec, ...]:
+    """Inputs from the `--inputs` syntax (INPUTS_SYNTAX); raises ValueError naming the bad item."""
+    specs: list[InputSpec] = []
+    for item in (part.strip() for part in text.split(",")):
+        name, _, value = item.partition("@")
+        try:
+            if name == "temp" and not value:
+                spec = InputSpec(TEMP)
+            elif name == "rate" and value:
+                spec = InputSpec(TEMP_RATE, EstimatorSettings(float(value), average_s, step_s))
+                if not 2 * average_s <= spec.estimator.window_s <= 86400:
+                    raise ValueError(f"window must be from 2 * average_s ({2 * average_s:g} s) to 86400 s")
+            elif name == "lag" and value:
+                spec = InputSpec(TEMP_LAG, tau_s=float(value))
+            else:
+                raise ValueError("expected temp, rate@SECONDS or lag@SECONDS")
+        except ValueError as error:
+            raise ValueError(f"--inputs item {item!r}: {error}") from None
+        if spec in specs:
+            raise ValueError(f"--inputs item {item!r} is given twice")
+        specs.append(spec)
+    if not 1 <= len(specs) <= 16:
+        raise ValueError("--inputs needs 1 to 16 inputs")
+    return tuple(specs)
+
+
+def describe_inputs(specs: tuple[InputSpec, ...]) -> str:
+    """The `--inputs` spelling of a whole input set."""
+    return ",".join(spec.short for spec in specs)
 
 
 def default_inputs(estimator: EstimatorSettings | None = None) -> tuple[InputSpec, ...]:
@@ -50,7 +113,8 @@ def default_inputs(estimator: EstimatorSettings | None = None) -> tuple[InputSpe
 
 
 def warmup_samples(specs: tuple[InputSpec, ...], rate_hz: float) -> int:
-    """Samples before every input is real (the longest estimator window)."""
+    """Samples before every input is real (the longest estimator window; a lag starts in steady state at the
+    first temperature and has no warm-up)."""
     windows = [spec.estimator.samples(rate_hz)[0] for spec in specs if spec.estimator is not None]
     return max(windows, default=1) - 1
 
@@ -58,8 +122,24 @@ def warmup_samples(specs: tuple[InputSpec, ...], rate_hz: float) -> int:
 def inputs_batch(temp_c: np.ndarray, specs: tuple[InputSpec, ...], rate_hz: float) -> np.ndarray:
     """All inputs for a whole run of finite temperatures: an (n, len(specs)) array."""
     temp_c = np.asarray(temp_c, dtype=np.float64)
-    columns = [temp_c if spec.estimator is None else temp_rate_batch(temp_c, spec.estimator, rate_hz) for spec in specs]
+    columns = [_column_batch(temp_c, spec, rate_hz) for spec in specs]
     return np.column_stack(columns) if columns else np.empty((temp_c.size, 0))
+
+
+def _column_batch(temp_c: np.ndarray, spec: InputSpec, rate_hz: float) -> np.ndarray:
+    if spec.estimator is not None:
+        return temp_rate_batch(temp_c, spec.estimator, rate_hz)
+    if spec.tau_s is not None:
+        return LagFilter(spec.tau_s, rate_hz).update(temp_c)
+    return temp_c
+
+
+def _streaming(spec: InputSpec, rate_hz: float) -> TempRateEstimator | LagFilter | None:
+    if spec.estimator is not None:
+        return TempRateEstimator(spec.estimator, rate_hz)
+    if spec.tau_s is not None:
+        return LagFilter(spec.tau_s, rate_hz)
+    return None
 
 
 class InputBank:
@@ -68,9 +148,7 @@ class InputBank:
     def __init__(self, specs: tuple[InputSpec, ...], rate_hz: float) -> None:
         self.specs = specs
         self.rate_hz = float(rate_hz)
-        self._estimators = [
-            None if spec.estimator is None else TempRateEstimator(spec.estimator, rate_hz) for spec in specs
-        ]
+        self._estimators = [_streaming(spec, rate_hz) for spec in specs]
         self.warmup = warmup_samples(specs, rate_hz)
         self.count = 0
 

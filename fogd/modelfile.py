@@ -18,7 +18,8 @@ from fogd import __version__
 from fogd.errors import ModelFileError, describe_os_error
 from fogd.estimator import EstimatorSettings
 from fogd.frozen import FrozenModel, build_evaluator
-from fogd.inputs import KINDS, TEMP_RATE, InputSpec
+from fogd.inputs import KINDS, TEMP_LAG, TEMP_RATE, InputSpec
+from fogd.lag import MAX_TAU_S
 
 MODEL_FORMAT = "fogd-model"
 MODEL_VERSION = 1
@@ -246,9 +247,17 @@ class _Checker:
                 if not 0 <= settings.step_s <= settings.window_s:
                     self.fail(where, "needs 0 <= step_s <= window_s")
                 specs.append(InputSpec(TEMP_RATE, settings))
+            elif item["kind"] == TEMP_LAG:
+                self.mapping(item, where, {"kind", "tau_s"})
+                tau_s = self.number(item["tau_s"], f"{where}.tau_s")
+                if not 0 < tau_s <= MAX_TAU_S:
+                    self.fail(where, f"needs 0 < tau_s <= {MAX_TAU_S:g}")
+                specs.append(InputSpec(TEMP_LAG, tau_s=tau_s))
             else:
                 self.mapping(item, where, {"kind"})
                 specs.append(InputSpec(item["kind"]))
+        if len(set(specs)) != len(specs):
+            self.fail("inputs", "lists the same input twice")
         return tuple(specs)
 
     def params(self, value: Any, method: str, d: int) -> dict[str, Any]:
