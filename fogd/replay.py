@@ -6,6 +6,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from fogd.allan import AllanResult, analyse
 from fogd.compensator import Compensated, Compensator
 from fogd.errors import InputError
 from fogd.features import TRUE_ERROR_COLUMN, block_samples
@@ -53,3 +54,21 @@ def replay_table(run: Run, result: Compensated, block_s: float) -> ReplayTable:
     if truth is not None:
         best = detrended_stats(block_means(run.rate_dph - truth, use, block_n)[0])
     return ReplayTable(detrended_stats(before), detrended_stats(after), best, int(kept.sum()))
+
+
+def allan_curves(run: Run, result: Compensated) -> dict[str, AllanResult]:
+    """Overlapping Allan deviation of the rate before and after compensation (and with the simulator's true
+    thermal error removed, when the run has it), over the warm rows with a valid rate and temperature.
+
+    Flagged rows are dropped rather than bridged, so a run with gaps joins its valid stretches end to end."""
+    use = (result.flags & (Flag.WARMUP | Flag.RATE_INVALID | Flag.TEMP_INVALID)) == 0
+    if use.sum() < 3:
+        raise InputError(f"{run.path}: fewer than 3 valid warm rows; no Allan deviation")
+    curves = {
+        "before compensation": analyse(run.rate_dph[use], run.rate_hz),
+        "after compensation": analyse(result.rate_comp_dph[use], run.rate_hz),
+    }
+    truth = run.extra.get(TRUE_ERROR_COLUMN)
+    if truth is not None:
+        curves["true error removed"] = analyse((run.rate_dph - truth)[use], run.rate_hz)
+    return curves

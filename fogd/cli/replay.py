@@ -9,7 +9,8 @@ from typing import Sequence
 from fogd import modelfile
 from fogd.cli.common import ArgumentParser, positive_float, run
 from fogd.flags import Flag
-from fogd.replay import replay, replay_table
+from fogd.allan import plot, summary_lines
+from fogd.replay import allan_curves, replay, replay_table
 from fogd.runio import read_run, write_csv
 from fogd.tables import error_table
 
@@ -38,6 +39,11 @@ def parser() -> ArgumentParser:
     p.add_argument("run", metavar="RUN.csv", help="recorded run to compensate")
     p.add_argument("-o", "--output", metavar="OUT.csv", help="compensated CSV to write ('-' for stdout)")
     p.add_argument("--block-s", type=positive_float, default=100.0, help="block length for table 4, in seconds")
+    p.add_argument(
+        "--allan-plot", metavar="PNG",
+        help="write a log-log figure of the overlapping Allan deviation before and after compensation",
+    )  # fmt: skip
+    p.add_argument("--no-allan", action="store_true", help="skip the Allan deviation summary (long runs: a few seconds)")
     return p
 
 
@@ -68,6 +74,14 @@ def body(argv: Sequence[str] | None) -> int:
         rows.append(("Best possible (true error removed)", table.best))
     print(error_table(rows), file=report)
     print(_flag_counts(result.flags), file=report)
+    if not args.no_allan or args.allan_plot:
+        curves = allan_curves(recorded, result)
+        print("", file=report)
+        for line in summary_lines(curves):
+            print(line, file=report)
+        if args.allan_plot:
+            plot(args.allan_plot, curves, f"{recorded.name}: overlapping Allan deviation ({model.method})")
+            print(f"wrote {args.allan_plot}", file=sys.stderr)
     return 0
 
 

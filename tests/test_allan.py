@@ -1,0 +1,47 @@
+"""Overlapping Allan deviation: white rate noise of known ARW, a bias, a random walk, the direct formula."""
+
+import numpy as np
+import pytest
+
+from fogd.allan import allan_deviation, analyse, octave_taus, summary_lines
+
+
+@pytest.mark.parametrize("seed, rate_hz, arw_dpsh", [(1, 100.0, 0.005), (2, 200.0, 0.002), (3, 10.0, 0.05)])
+def test_white_noise_recovers_its_arw_within_5_percent(seed, rate_hz, arw_dpsh):
+    samples = 1_000_000
+    sigma_dph = 60.0 * arw_dpsh * np.sqrt(rate_hz)  # per-sample std of white rate noise with this ARW
+    rate = 3.0 + np.random.default_rng(seed).normal(0.0, sigma_dph, samples)
+    result = analyse(rate, rate_hz)
+    assert abs(result.arw_dpsh / arw_dpsh - 1.0) < 0.05
+    # and the whole curve follows N / sqrt(tau) over the octaves with enough clusters
+    expected = 60.0 * arw_dpsh / np.sqrt(result.tau_s)
+    good = result.tau_s * rate_hz <= samples / 1000
+    np.testing.assert_allclose(result.adev_dph[good], expected[good], rtol=0.05)
+
+
+def test_matches_the_direct_overlapping_formula():
+    rng = np.random.default_rng(5)
+    rate, rate_hz = rng.normal(0, 1, 500), 4.0
+    tau_s, adev = allan_deviation(rate, rate_hz, m=np.array([1, 3, 7, 50]))
+    tau0 = 1 / rate_hz
+    for tau, value in zip(tau_s, adev):
+        m = int(round(tau / tau0))
+        means = np.array([rate[k : k + m].mean() for k in range(rate.size - m + 1)])
+        direct = np.sqrt(0.5 * np.mean((means[m:] - means[:-m]) ** 2))
+        assert value == pytest.approx(direct, rel=1e-9)
+
+
+def test_constant_bias_has_zero_deviation_and_random_walk_rises():
+    assert np.all(allan_deviation(np.full(1000, 7.0), 1.0)[1] < 1e-12)
+    walk = np.cumsum(np.random.default_rng(0).normal(0, 1e-3, 200_000))
+    tau_s, adev = allan_deviation(walk, 10.0)
+    assert adev[-1] > adev[len(adev) // 2]  # rate random walk: +1/2 slope at long tau
+
+
+def test_bias_instability_is_the_minimum_over_0664_and_summary_prints():
+    rng = np.random.default_rng(9)
+    rate = rng.normal(0, 1.0, 100_000) + np.cumsum(rng.normal(0, 1e-3, 100_000))
+    result = analyse(rate, 10.0)
+    assert result.bias_instability_dph == pytest.approx(result.adev_dph.min() / 0.664)
+    assert "ARW" in summary_lines({"before": result})[0]
+    assert octave_taus(1000, 1.0)[-1] == 64
