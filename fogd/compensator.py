@@ -14,6 +14,10 @@ Policies (documented in the README):
 - Invalid rate (NaN, Inf, or the caller's `rate_valid` false): flagged RATE_INVALID; the estimator still
   advances, the compensated rate is the input passed through unchanged.
 - Calibrated domain: inputs are clamped to the training range and the sample flagged CLAMPED.
+- Joint domain (models with a `domain_guard`, fogd.domain): a sample whose input row is far from every
+  calibration block in the scaled joint space is flagged OUT_OF_DOMAIN and compensated by the fallback model
+  stored with the guard (the linear IEEE 952 fit on the same blocks) instead of the main model. Warm-up
+  samples are not guarded (their rate inputs are not real yet).
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fogd.domain import DomainGuard
 from fogd.flags import Flag
 from fogd.frozen import FrozenModel
 from fogd.inputs import InputBank
@@ -65,6 +70,7 @@ class Compensator:
         self._held_temp_c = np.nan
         # the temperature rate reported with each sample: the first eq. 16 input, if the model has one
         self._rate_column = next((i for i, spec in enumerate(model.inputs) if spec.estimator is not None), None)
+        self.guard: DomainGuard | None = model.meta.get("domain_guard")
 
     def reset(self) -> None:
         """Forget the temperature history (e.g. after a gap longer than the caller bridges)."""
@@ -99,6 +105,11 @@ class Compensator:
             warmup = np.arange(warm_before, warm_before + x.shape[0]) < self.bank.warmup
             flags[first:][warmup] |= int(Flag.WARMUP)
             comp, clamped = self.model.predict(x)
+            if self.guard is not None:
+                outside = self.guard.outside(x) & ~warmup
+                if outside.any():
+                    comp[outside] = self.guard.fallback.predict(x[outside])[0]
+                    flags[first:][outside] |= int(Flag.OUT_OF_DOMAIN)
             flags[first:][clamped] |= int(Flag.CLAMPED)
             comp_dph[first:] = comp
             if self._rate_column is not None:

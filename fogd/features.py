@@ -17,6 +17,7 @@ from fogd.inputs import InputSpec, inputs_batch, warmup_samples
 from fogd.metrics import block_means
 from fogd.runio import Run
 
+SAMPLE_ROWS_PER_RUN = 5000  # sample-level input rows kept per run (the domain guard's threshold uses them)
 TRUE_ERROR_COLUMN = "true_error_dph"  # written by fogd-sim; used for diagnostics only, never for fitting
 
 
@@ -32,6 +33,7 @@ class TrainingSet:
     domain_max: np.ndarray
     true_error_dph: np.ndarray | None = None  # block means of the simulator's truth, when every run has it
     runs: list[dict] = field(default_factory=list)
+    x_samples: np.ndarray | None = None  # evenly strided warm sample rows (inputs as served, not block means)
 
 
 def block_samples(block_s: float, rate_hz: float) -> int:
@@ -51,6 +53,7 @@ def training_set(runs: list[Run], specs: tuple[InputSpec, ...], block_s: float) 
         domain_max=np.max([part["high"] for part in parts], axis=0),
         true_error_dph=np.concatenate([part["truth"] for part in parts]) if with_truth else None,
         runs=[part["info"] for part in parts],
+        x_samples=np.concatenate([part["samples"] for part in parts]),
     )
 
 
@@ -85,6 +88,7 @@ def _run_blocks(run: Run, index: int, specs: tuple[InputSpec, ...], block_s: flo
         "low": x[use].min(axis=0),
         "high": x[use].max(axis=0),
         "truth": truth_blocks,
+        "samples": x[use][:: max(1, int(use.sum()) // SAMPLE_ROWS_PER_RUN)],
         "info": {
             "name": run.name,
             "sha256": run.sha256,

@@ -3,6 +3,12 @@
 A model file is data from outside. Loading reads at most `MAX_MODEL_BYTES`, refuses pickles and other binary
 files by their first bytes, parses strict JSON (no NaN; deep nesting refused), accepts exactly the keys below and
 checks every array's shape and finiteness; anything else is a `ModelFileError` with a one-line message.
+
+Version 1 grew compatibly (files written before still load; older fogd refuses the new parts by name):
+inputs may be `temp_lag_c` (with `tau_s`) and several `temp_rate_cps` windows, and an optional top-level
+`domain_guard` holds the joint-space guard of fogd.domain: `points` (calibration block rows in scaled units),
+`threshold` (scaled distance) and `fallback` (`{"method": "linear", "params": {"coef", "intercept"}}`, in the
+model's own input and output scaling).
 """
 
 from __future__ import annotations
@@ -15,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from fogd import __version__
+from fogd.domain import DomainGuard
 from fogd.errors import ModelFileError, describe_os_error
 from fogd.estimator import EstimatorSettings
 from fogd.frozen import FrozenModel, build_evaluator
@@ -31,6 +38,8 @@ TOP_KEYS = {
     "format", "version", "name", "method", "inputs", "input_scaling", "output_scaling", "domain", "params",
     "reference_dph", "training", "metrics", "created_utc", "fogd_version",
 }  # fmt: skip
+OPTIONAL_TOP_KEYS = {"domain_guard"}
+GUARD_KEYS = {"points", "threshold", "fallback"}
 PARAM_KEYS = {
     "linear": {"coef", "intercept"},
     "ls-poly": {"powers", "coef", "intercept"},
@@ -72,8 +81,10 @@ def document(
     training: dict[str, Any],
     metrics: dict[str, Any],
     created_utc: str,
+    domain_guard: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """A model document in the file's layout, ready for `save`."""
+    optional = {} if domain_guard is None else {"domain_guard": domain_guard}
     return {
         "format": MODEL_FORMAT,
         "version": MODEL_VERSION,
@@ -89,6 +100,7 @@ def document(
         "metrics": metrics,
         "created_utc": created_utc,
         "fogd_version": __version__,
+        **optional,
     }
 
 
@@ -127,7 +139,7 @@ def _reject_constant(name: str) -> None:
 def from_document(doc: Any, *, source: str = "model") -> FrozenModel:
     """Validate a parsed model document and build the frozen model it describes."""
     check = _Checker(source)
-    check.mapping(doc, "", TOP_KEYS)
+    check.mapping(doc, "", TOP_KEYS, optional=OPTIONAL_TOP_KEYS)
     if doc["format"] != MODEL_FORMAT:
         check.fail("format", f"is {str(doc['format'])[:40]!r}, expected {MODEL_FORMAT!r}")
     version = check.integer(doc["version"], "version")
@@ -156,6 +168,16 @@ def from_document(doc: Any, *, source: str = "model") -> FrozenModel:
         check.mapping(doc[key], key, None)
     created = check.string(doc["created_utc"], "created_utc")
     check.string(doc["fogd_version"], "fogd_version")
+    meta = {
+        "reference_dph": doc["reference_dph"],
+        "training": doc["training"],
+        "metrics": doc["metrics"],
+        "created_utc": created,
+    }
+    if "domain_guard" in doc:
+        meta["domain_guard"] = check.guard(
+            doc["domain_guard"], inputs, x_mean, x_scale, y_mean, y_scale, domain_min, domain_max, name
+        )
     return FrozenModel(
         method=method,
         inputs=inputs,
@@ -167,12 +189,7 @@ def from_document(doc: Any, *, source: str = "model") -> FrozenModel:
         domain_max=domain_max,
         evaluator=build_evaluator(method, params),
         name=name,
-        meta={
-            "reference_dph": doc["reference_dph"],
-            "training": doc["training"],
-            "metrics": doc["metrics"],
-            "created_utc": created,
-        },
+        meta=meta,
     )
 
 
@@ -185,12 +202,12 @@ class _Checker:
     def fail(self, where: str, what: str) -> None:
         raise ModelFileError(f"{self.source}: field {where or 'top level'} {what}")
 
-    def mapping(self, value: Any, where: str, keys: set[str] | None) -> None:
+    def mapping(self, value: Any, where: str, keys: set[str] | None, *, optional: set[str] = frozenset()) -> None:
         if not isinstance(value, dict):
             self.fail(where, f"must be an object, found {type(value).__name__}")
         if keys is None:
             return
-        missing, unknown = keys - value.keys(), value.keys() - keys
+        missing, unknown = keys - value.keys(), value.keys() - keys - optional
         if missing:
             self.fail(where, f"lacks {', '.join(sorted(missing))}")
         if unknown:
@@ -259,6 +276,27 @@ class _Checker:
         if len(set(specs)) != len(specs):
             self.fail("inputs", "lists the same input twice")
         return tuple(specs)
+
+    def guard(self, value: Any, inputs, x_mean, x_scale, y_mean, y_scale, domain_min, domain_max, name) -> DomainGuard:
+        self.mapping(value, "domain_guard", GUARD_KEYS)
+        d = len(inputs)
+        points = self.matrix(value["points"], "domain_guard.points", d)
+        threshold = self.number(value["threshold"], "domain_guard.threshold", positive=True)
+        fallback = value["fallback"]
+        self.mapping(fallback, "domain_guard.fallback", {"method", "params"})
+        if fallback["method"] != "linear":
+            self.fail("domain_guard.fallback.method", f"is {str(fallback['method'])[:40]!r}; the fallback is 'linear'")
+        self.mapping(fallback["params"], "domain_guard.fallback.params", PARAM_KEYS["linear"])
+        params = {
+            "coef": self.vector(fallback["params"]["coef"], "domain_guard.fallback.params.coef", d),
+            "intercept": self.number(fallback["params"]["intercept"], "domain_guard.fallback.params.intercept"),
+        }
+        model = FrozenModel(
+            method="linear", inputs=inputs, x_mean=x_mean, x_scale=x_scale, y_mean=y_mean, y_scale=y_scale,
+            domain_min=domain_min, domain_max=domain_max, evaluator=build_evaluator("linear", params),
+            name=f"{name} (fallback)",
+        )  # fmt: skip
+        return DomainGuard(points, threshold, x_mean, x_scale, model)
 
     def params(self, value: Any, method: str, d: int) -> dict[str, Any]:
         self.mapping(value, "params", PARAM_KEYS[method])

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from fogd import modelfile
+from fogd import domain, modelfile
 from fogd.features import TrainingSet, block_samples, training_set
 from fogd.frozen import FrozenModel
 from fogd.inputs import InputSpec, default_inputs
@@ -31,6 +31,7 @@ class TrainConfig:
     reference: str | float = "mean"  # 'mean' of all training blocks, or a rate in deg/h
     fit: FitOptions = field(default_factory=FitOptions)
     name: str | None = None
+    domain_guard: bool = True  # store the joint-space guard and its linear fallback (fogd.domain)
 
 
 @dataclass
@@ -95,11 +96,30 @@ def train(runs: list[Run], config: TrainConfig, prepared: tuple[TrainingSet, flo
         },
         metrics=metrics,
         created_utc=created,
+        domain_guard=domain_guard_document(data, error, fitted, config.fit) if config.domain_guard else None,
     )
     model = modelfile.from_document(document)
     fit_dph, _ = model.predict(data.x)
     metrics["train_after"] = ErrorStats.of(error - fit_dph).to_dict()
     return Trained(document, model, fitted, data, reference, error, fit_dph)
+
+
+def domain_guard_document(data: TrainingSet, error: np.ndarray, fitted: Fitted, options: FitOptions) -> dict[str, Any]:
+    """The model file's `domain_guard`: the calibration blocks in the model's scaled units, the threshold and
+    the linear fallback (fitted to the same blocks, so it shares the model's scaling exactly)."""
+    linear = fitted if fitted.method == "linear" else fit("linear", data.x, error, data.groups, options)
+    same = all(np.array_equal(a, b) for a, b in (
+        (linear.x_mean, fitted.x_mean), (linear.x_scale, fitted.x_scale),
+        (linear.y_mean, fitted.y_mean), (linear.y_scale, fitted.y_scale)))  # fmt: skip
+    if not same:
+        raise AssertionError("the linear fallback must share the model's scaling")
+    points = domain.thin((data.x - fitted.x_mean) / fitted.x_scale)
+    samples = None if data.x_samples is None else (data.x_samples - fitted.x_mean) / fitted.x_scale
+    return {
+        "points": points.tolist(),
+        "threshold": domain.choose_threshold(points, samples),
+        "fallback": {"method": "linear", "params": linear.params},
+    }
 
 
 def _json_ready(values: dict[str, Any]) -> dict[str, Any]:
