@@ -40,9 +40,12 @@ def block_samples(block_s: float, rate_hz: float) -> int:
     return max(1, int(round(block_s * rate_hz)))
 
 
-def training_set(runs: list[Run], specs: tuple[InputSpec, ...], block_s: float) -> TrainingSet:
-    """Build the block rows of all runs; raises InputError if a run is too short to give any."""
-    parts = [_run_blocks(run, index, specs, block_s) for index, run in enumerate(runs)]
+def training_set(runs: list[Run], specs: tuple[InputSpec, ...], block_s: float, min_warmup_s: float = 0.0) -> TrainingSet:
+    """Build the block rows of all runs; raises InputError if a run is too short to give any.
+
+    `min_warmup_s` starts the blocks at least that late in each run, so that input sets with different
+    estimator windows get the very same blocks and targets (`--method auto` compares them on those)."""
+    parts = [_run_blocks(run, index, specs, block_s, min_warmup_s) for index, run in enumerate(runs)]
     with_truth = all(part["truth"] is not None for part in parts)
     return TrainingSet(
         x=np.concatenate([part["x"] for part in parts]),
@@ -57,8 +60,8 @@ def training_set(runs: list[Run], specs: tuple[InputSpec, ...], block_s: float) 
     )
 
 
-def _run_blocks(run: Run, index: int, specs: tuple[InputSpec, ...], block_s: float) -> dict:
-    warmup = warmup_samples(specs, run.rate_hz)
+def _run_blocks(run: Run, index: int, specs: tuple[InputSpec, ...], block_s: float, min_warmup_s: float) -> dict:
+    warmup = max(warmup_samples(specs, run.rate_hz), int(round(min_warmup_s * run.rate_hz)))
     block_n = block_samples(block_s, run.rate_hz)
     temp_ok = temperature_valid(run.temp_c)
     if not temp_ok.any():

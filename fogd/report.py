@@ -19,7 +19,7 @@ from fogd.features import TRUE_ERROR_COLUMN, block_samples
 from fogd.flags import Flag
 from fogd.inputs import TEMP, TEMP_RATE
 from fogd.metrics import ErrorStats, block_means
-from fogd.replay import replay, replay_table
+from fogd.replay import allan_curves, replay, replay_table
 from fogd.runio import Run
 from fogd.tables import error_table
 
@@ -33,8 +33,20 @@ SUMMARY = "report.md"
 MEASURED, TRUTH, BEFORE = "tab:gray", "black", "0.55"
 
 
-def write_report(directory: str, trained: dict[str, Trained], chosen: str, holdouts: list[Run], block_s: float) -> str:
-    """Write the figures and `report.md` into `directory` (created if missing); returns the summary's path."""
+def write_report(
+    directory: str,
+    trained: dict[str, Trained],
+    chosen: str,
+    holdouts: list[Run],
+    block_s: float,
+    *,
+    selection: list[str] | None = None,
+    allan: bool = False,
+) -> str:
+    """Write the figures and `report.md` into `directory` (created if missing); returns the summary's path.
+
+    `selection`: the `--method auto` table (markdown lines); `allan`: add the Allan deviation of each held-out
+    run before and after compensation by the chosen model (table and log-log figure)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -46,6 +58,16 @@ def write_report(directory: str, trained: dict[str, Trained], chosen: str, holdo
     colours = {method: f"C{index}" for index, method in enumerate(trained)}
     first = next(iter(trained.values()))
     lines = _training_summary(trained, chosen, block_s)
+    if selection:
+        lines += [
+            "## Model selection (`--method auto`)",
+            "",
+            "Held-out RMSE of every candidate on the same blocks (leave-one-run-out, or blocked time folds for "
+            "one run); `vs linear` is relative to the linear model on the first input set.",
+            "",
+            *selection,
+            "",
+        ]
     lines += [f"## Table 3: fit on the training runs ({len(first.error_dph)} blocks of {block_s:g} s)", ""]
     rows = [("Before compensation", first.before)] + [(method, t.after) for method, t in trained.items()]
     lines += [error_table(rows, markdown=True), ""]
@@ -68,6 +90,8 @@ def write_report(directory: str, trained: dict[str, Trained], chosen: str, holdo
         lines += ["## PSO convergence", "", f"![PSO convergence]({name})", ""]
     for index, run in enumerate(holdouts, start=1):
         lines += _holdout_section(index, run, trained, colours, block_s, out)
+        if allan:
+            lines += _allan_section(index, run, chosen, trained[chosen], out)
     path = out / SUMMARY
     try:
         path.write_text("\n".join(lines), encoding="utf-8")
@@ -188,7 +212,7 @@ def _hysteresis_figure(trained: dict[str, Trained]) -> Figure:
         axis.set_visible(False)
     for axis, (method, t) in zip(axes.flat, trained.items()):
         kinds = [spec.kind for spec in t.model.inputs]
-        temp_col = kinds.index(TEMP)
+        temp_col = kinds.index(TEMP) if TEMP in kinds else 0
         rate_col = kinds.index(TEMP_RATE) if TEMP_RATE in kinds else None
         x = t.data.x
         if rate_col is None:
@@ -246,6 +270,28 @@ def _convergence_figure(histories: dict[str, Trained], colours: dict[str, str]) 
     axis.grid(True, which="both", alpha=0.4)
     axis.legend()
     return figure
+
+
+def _allan_section(index: int, run: Run, chosen: str, t: Trained, out: Path) -> list[str]:
+    """Overlapping Allan deviation of a held-out run before and after compensation by the written model."""
+    from fogd.allan import plot, summary_lines
+
+    curves = allan_curves(run, replay(t.model, run))
+    name = f"allan_{index}_{_slug(Path(run.name).stem)}.png"
+    try:
+        plot(str(out / name), curves, f"{run.name}: overlapping Allan deviation ({chosen})")
+    except OSError as error:
+        raise InputError(f"cannot write {describe_os_error(error)}") from None
+    return [
+        f"### Allan deviation of {run.name} ({chosen})",
+        "",
+        "```",
+        *summary_lines(curves),
+        "```",
+        "",
+        f"![{run.name}: Allan deviation]({name})",
+        "",
+    ]
 
 
 def _holdout_section(

@@ -55,9 +55,9 @@ class Trained:
         return ErrorStats.of(self.error_dph - self.fit_dph)
 
 
-def prepare(runs: list[Run], config: TrainConfig) -> tuple[TrainingSet, float]:
+def prepare(runs: list[Run], config: TrainConfig, min_warmup_s: float = 0.0) -> tuple[TrainingSet, float]:
     """Block rows of the runs and the reference rate; shared by every method of a comparison."""
-    data = training_set(runs, config.inputs, config.block_s)
+    data = training_set(runs, config.inputs, config.block_s, min_warmup_s)
     reference = float(np.mean(data.rate_dph)) if config.reference == "mean" else float(config.reference)
     return data, reference
 

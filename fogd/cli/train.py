@@ -10,10 +10,11 @@ from fogd import modelfile
 from fogd.cli.common import ArgumentParser, non_negative_float, positive_float, positive_int, run
 from fogd.errors import UsageError
 from fogd.estimator import EstimatorSettings
-from fogd.inputs import default_inputs
+from fogd.inputs import INPUTS_SYNTAX, default_inputs, parse_inputs
 from fogd.models import FITNESSES, METHODS, FitOptions
 from fogd.replay import replay, replay_table
 from fogd.runio import read_run
+from fogd.selection import AUTO_ITERATIONS, AUTO_PARTICLES, DEFAULT_INPUT_SETS, input_sets, select, stderr_log, table_lines
 from fogd.tables import error_table
 from fogd.training import TrainConfig, Trained, prepare, train
 
@@ -30,7 +31,25 @@ def parser() -> ArgumentParser:
     )
     p.add_argument("runs", nargs="+", metavar="RUN.csv", help="calibration runs; blocks never straddle two runs")
     p.add_argument("-o", "--output", metavar="MODEL.json", help="model file to write (required unless --compare)")
-    p.add_argument("--method", choices=METHODS, default="pso-svr", help="model family")
+    p.add_argument(
+        "--method", choices=(*METHODS, "auto"), default="pso-svr",
+        help="model family; auto: choose the family and the input set by held-out error (leave-one-run-out, "
+        "or blocked time folds for one run) among linear, ls-poly, rbf-nn, pso-svr on the --auto-inputs sets",
+    )  # fmt: skip
+    p.add_argument(
+        "--inputs", metavar="LIST", default=None,
+        help=f"model inputs (default temp,rate@WINDOW_S): {INPUTS_SYNTAX}",
+    )  # fmt: skip
+    p.add_argument(
+        "--auto-inputs", metavar="LIST", action="append",
+        help="an input set for --method auto (repeat the option for several; default: "
+        + " | ".join(DEFAULT_INPUT_SETS) + ")",
+    )  # fmt: skip
+    p.add_argument(
+        "--no-domain-guard", action="store_true",
+        help="do not store the joint-space domain guard (samples far from every calibration block are then "
+        "not flagged OUT_OF_DOMAIN nor compensated by the linear fallback)",
+    )  # fmt: skip
     p.add_argument(
         "--fitness", choices=FITNESSES, default="cv",
         help="PSO fitness: cv = RMSE on held-out folds (leave-one-run-out, or blocked in time for one run); "
@@ -40,8 +59,10 @@ def parser() -> ArgumentParser:
         "--trend", choices=("linear", "none"), default="linear",
         help="pso-svr: fit the SVR on top of a linear (IEEE 952) trend, or 'none' for the paper's plain SVR",
     )  # fmt: skip
-    p.add_argument("--particles", type=positive_int, default=60, help="PSO population (paper: 60)")
-    p.add_argument("--iterations", type=positive_int, default=100, help="PSO iterations (paper: 100)")
+    p.add_argument("--particles", type=positive_int, default=None,
+                   help=f"PSO population (default 60 as the paper; {AUTO_PARTICLES} inside --method auto)")
+    p.add_argument("--iterations", type=positive_int, default=None,
+                   help=f"PSO iterations (default 100 as the paper; {AUTO_ITERATIONS} inside --method auto)")
     p.add_argument("--c1", type=non_negative_float, default=2.0, help="PSO cognitive learning factor")
     p.add_argument("--c2", type=non_negative_float, default=2.0, help="PSO social learning factor")
     p.add_argument("--folds", type=positive_int, default=5, help="blocked time folds for cv with a single run")
@@ -77,32 +98,63 @@ def body(argv: Sequence[str] | None) -> int:
     args = parser().parse_args(argv)
     if not args.output and not args.compare:
         raise UsageError(f"give -o MODEL.json (or --compare to only compare methods) (see {PROG} --help)")
+    auto = args.method == "auto"
     try:
         estimator = EstimatorSettings(args.window_s, args.average_s, args.step_s)
+        inputs = default_inputs(estimator) if args.inputs is None else parse_inputs(args.inputs, args.average_s, args.step_s)
+        sets = input_sets(args.auto_inputs, args.average_s, args.step_s) if auto else [inputs]
         runs = [read_run(path) for path in args.runs]
         for loaded in runs:
-            estimator.samples(loaded.rate_hz)
+            for specs in sets:
+                for spec in specs:
+                    if spec.estimator is not None:
+                        spec.estimator.samples(loaded.rate_hz)
     except ValueError as error:
         raise UsageError(str(error)) from None
+    if args.auto_inputs and not auto:
+        raise UsageError("--auto-inputs goes with --method auto")
+    if auto and args.compare:
+        raise UsageError("--compare fits every method on one input set; --method auto already compares them all")
+    particles = args.particles or (AUTO_PARTICLES if auto else 60)
+    iterations = args.iterations or (AUTO_ITERATIONS if auto else 100)
     holdouts = [read_run(path) for path in args.holdout]
     config = TrainConfig(
         method=args.method,
-        inputs=default_inputs(estimator),
+        inputs=inputs,
+        domain_guard=not args.no_domain_guard,
         block_s=args.block_s,
         reference=_reference(args.reference),
         fit=FitOptions(
-            degree=args.degree, particles=args.particles, iterations=args.iterations, c1=args.c1, c2=args.c2,
+            degree=args.degree, particles=particles, iterations=iterations, c1=args.c1, c2=args.c2,
             fitness=args.fitness, trend=args.trend == "linear", folds=args.folds, n_jobs=args.jobs, seed=args.seed, progress=not args.quiet,
         ),  # fmt: skip
         name=args.name,
     )
-    prepared = prepare(runs, config)
-    methods = list(METHODS) if args.compare else [args.method]
-    trained: dict[str, Trained] = {}
-    for method in methods:
-        config.method = method
-        trained[method] = train(runs, config, prepared)
-    chosen = trained[args.method]
+    selection: list[str] | None = None
+    if auto:
+        best, candidates = select(runs, config, sets, log=None if args.quiet else stderr_log)
+        label = f"auto: {best.label}"
+        trained: dict[str, Trained] = {label: best.trained}
+        chosen = best.trained
+        chosen.document["training"]["selection"] = {
+            "folds": "leave-one-run-out" if len(runs) >= 2 else f"{args.folds} blocked time folds",
+            "chosen": best.row(),
+            "candidates": [candidate.row() for candidate in candidates],
+        }
+        selection = table_lines(candidates, best, markdown=True)
+        print(f"\nModel selection (--method auto): held-out RMSE of each candidate, "
+              f"{'leave-one-run-out' if len(runs) >= 2 else f'{args.folds} blocked time folds'}")
+        print("\n".join(table_lines(candidates, best)))
+        print(f"chosen: {best.label}")
+    else:
+        prepared = prepare(runs, config)
+        methods = list(METHODS) if args.compare else [args.method]
+        trained = {}
+        for method in methods:
+            config.method = method
+            trained[method] = train(runs, config, prepared)
+        label = args.method
+        chosen = trained[args.method]
     for line in _summary(chosen):
         print(line, file=sys.stderr)
     print(f"\nTable 3: fit on the training runs ({len(chosen.error_dph)} blocks of {args.block_s:g} s)")
@@ -113,11 +165,11 @@ def body(argv: Sequence[str] | None) -> int:
         print(error_table(_holdout_rows(trained, holdout, args.block_s)))
     if args.output:
         modelfile.save(args.output, chosen.document)
-        print(f"\nwrote {args.output} ({args.method}, {chosen.model.name})", file=sys.stderr)
+        print(f"\nwrote {args.output} ({label}, {chosen.model.name})", file=sys.stderr)
     if args.report:
         from fogd.report import write_report  # matplotlib only when a report is asked for
 
-        path = write_report(args.report, trained, args.method, holdouts, args.block_s)
+        path = write_report(args.report, trained, label, holdouts, args.block_s, selection=selection, allan=True)
         print(f"wrote report {path}", file=sys.stderr)
     return 0
 
