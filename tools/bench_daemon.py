@@ -82,6 +82,7 @@ class Step:
     bad_headers: int = 0
     elapsed_s: float = 0.0
     cpu_s: float = 0.0
+    peak_rss_mb: float = float("nan")  # VmHWM after the step
     latencies_s: list[float] = field(default_factory=list)
 
     @property
@@ -117,8 +118,9 @@ class Harness:
                 return line.split(":", 1)[1].strip()
         return "?"
 
-    def maps_sklearn(self) -> bool:
-        return "sklearn" in Path(f"/proc/{self.process.pid}/maps").read_text()
+    def mapped(self, package: str) -> bool:
+        """True if any file of `package` (its compiled extensions) is mapped into the process."""
+        return f"/{package}/" in Path(f"/proc/{self.process.pid}/maps").read_text()
 
     def warm_up(self, timeout_s: float = 20.0) -> None:
         """Frames at 100/s until the first comes back (the process is up and has opened both ports), then quiet."""
@@ -255,9 +257,10 @@ def measure(label: str, command, rates: list[float], step_s: float, latency_s: f
         steps = []
         for hz in rates:
             steps.append(harness.run(Step(hz, step_s)))
+            steps[-1].peak_rss_mb = _mb(harness.status("VmHWM"))
         result = {
             "latency": latency, "cpu": cpu, "steps": steps, "rss_mb": _mb(harness.status("VmHWM")),
-            "sklearn": harness.maps_sklearn(),
+            "sklearn": harness.mapped("sklearn"), "scipy": harness.mapped("scipy"),
         }  # fmt: skip
     finally:
         stderr = harness.stop()
@@ -358,11 +361,11 @@ def main(argv: list[str] | None = None) -> int:
         row = [f"{hz:,.0f}"]
         for label in ("fogd", "relay"):
             step = results[label]["steps"][index]
-            row += [f"{step.achieved_hz:,.0f}", f"{step.written - step.read}", f"{step.breaks}"]
+            row += [f"{step.achieved_hz:,.0f}", f"{step.written - step.read}", f"{step.breaks}", f"{step.peak_rss_mb:.0f}"]
         rows.append(row)
     print_table("3a. Sustained rate over pty loopback (frames/s): loss = written - read back; breaks = sequence gaps",
-                ["asked/s", "fogd achieved/s", "fogd lost", "fogd seq breaks", "relay achieved/s", "relay lost",
-                 "relay seq breaks"], rows)  # fmt: skip
+                ["asked/s", "fogd achieved/s", "fogd lost", "fogd seq breaks", "fogd peak RSS MB", "relay achieved/s",
+                 "relay lost", "relay seq breaks", "relay peak RSS MB"], rows)  # fmt: skip
     summary, ok = [], True
     for label in results:
         r = results[label]
@@ -375,11 +378,11 @@ def main(argv: list[str] | None = None) -> int:
             f"{percentile_us(lat.latencies_s, 100):.0f}", f"{len(lat.latencies_s)}/{lat.written}",
             f"{100 * r['cpu'][200.0].cpu_s / r['cpu'][200.0].elapsed_s:.1f}%",
             f"{100 * r['cpu'][1000.0].cpu_s / r['cpu'][1000.0].elapsed_s:.1f}%", f"{r['rss_mb']:.1f}",
-            "yes" if r["sklearn"] else "no",
+            "yes" if r["sklearn"] else "no", "yes" if r["scipy"] else "no",
         ])  # fmt: skip
     print_table("3b-d. Latency at 1000 frames/s (us, last input byte written -> output frame read), CPU, memory",
                 ["process", "max zero-loss/s", "p50 us", "p99 us", "max us", "matched frames", "CPU at 200/s",
-                 "CPU at 1000/s", "peak RSS MB", "sklearn mapped"], summary)  # fmt: skip
+                 "CPU at 1000/s", "peak RSS MB", "sklearn mapped", "scipy mapped"], summary)  # fmt: skip
     fogd, relay = results["fogd"], results["relay"]
     checks = [
         ("max zero-loss rate >= 20,000/s", fogd["max_rate"] >= TARGET_RATE),

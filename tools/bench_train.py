@@ -83,8 +83,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="a 10 Hz run and a 6x4 swarm (smoke test)")
     parser.add_argument("--jobs", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--fitness", nargs="+", choices=("train", "cv"), default=["train", "cv"])
+    parser.add_argument("--particles", type=int, default=None, help="swarm size (default: the paper's 60; quick 6)")
+    parser.add_argument("--iterations", type=int, default=None, help="PSO iterations (default: the paper's 100; quick 4)")
     args = parser.parse_args(argv)
     rate_hz, (particles, iterations) = (10.0, (6, 4)) if args.quick else (200.0, (60, 100))
+    particles, iterations = args.particles or particles, args.iterations or iterations
+    paper = (particles, iterations) == (60, 100)
     print(machine())
     rows, ok = [], True
     with tempfile.TemporaryDirectory() as folder:
@@ -100,14 +104,17 @@ def main(argv: list[str] | None = None) -> int:
                 best_pso = document["training"]["fitness_history_dph"][-1]
                 hyper = document["training"]["hyperparameters"]
                 good = wall_s < TARGET_S[fitness]
-                ok &= good
+                ok &= good or not paper
+                target = f"< {TARGET_S[fitness]:.0f} s: {verdict(good)}" if paper else "(not the paper's swarm)"
+                print(f"  fogd-train --fitness {fitness} --jobs {jobs}: {wall_s:.1f} s, best {best_pso:.5f} deg/h", flush=True)
                 rows.append([
                     f"fogd-train pso-svr --fitness {fitness} --jobs {jobs}", f"{wall_s:.1f}", f"{best_pso:.5f}",
                     f"C={hyper['C']:.3g} eps={hyper['epsilon']:.3g} sigma={hyper['sigma']:.3g}",
-                    f"< {TARGET_S[fitness]:.0f} s: {verdict(good)}",
+                    target,
                 ])  # fmt: skip
             jobs = max(args.jobs)
             best_random, random_s = random_search(run_path, fitness, particles * iterations, jobs)
+            print(f"  random search, fitness {fitness}: {random_s:.1f} s, best {best_random:.5f} deg/h", flush=True)
             rows.append([
                 f"random search, {particles * iterations} evaluations, fitness {fitness}, {jobs} jobs", f"{random_s:.1f}",
                 f"{best_random:.5f}", f"PSO/random best fitness = {best_pso / best_random:.3f}", "-",
