@@ -373,7 +373,7 @@ def test_bad_input_gives_one_line_and_the_right_exit_status(tmp_path, gyro, mode
         (["--port", str(tmp_path / "ttyNONE"), "--model", model], 74, "no such port"),
         (["--port", gyro.path, "--model", model, "--out", str(tmp_path / "no" / "dir" / "out")], 74, "cannot open output"),
         (["--port", gyro.path, "--model", str(bad_model)], 65, "bad-model.json"),
-        (["--port", gyro.path, "--model", str(tmp_path / "missing.json")], 65, "missing.json"),
+        (["--port", gyro.path, "--model", str(tmp_path / "missing.json")], 78, "missing.json"),
     ]
     for args, status, text in cases:
         got_status, line = one_line_failure(tmp_path, *args)

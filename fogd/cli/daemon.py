@@ -1,7 +1,7 @@
 """`fogd`: the real-time daemon. Reads a FOG's serial port, compensates one gyro axis for temperature with a
-frozen model and writes the result to a sink; options come from the command line and a YAML config file
-(same keys, underscores for dashes; the command line wins). This module owns option parsing, the config
-file and wiring the parts together; the threads live in fogd.reader, fogd.daemon and fogd.outputs.
+frozen model and writes the result to a sink. This module owns the command line, wiring the parts together and
+the signals (SIGTERM/SIGINT stop, SIGHUP reload, SIGUSR1 counters); settings and the config file live in
+fogd.config, the threads in fogd.reader, fogd.daemon and fogd.outputs.
 """
 
 from __future__ import annotations
@@ -13,68 +13,29 @@ import os
 import signal
 import sys
 import threading
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
-import yaml
-
-from fogd import modelfile, profiles, protocols
-from fogd.cli.common import ArgumentParser, positive_float, positive_int, run
-from fogd.daemon import RING_CAPACITY, Daemon
-from fogd.errors import ConfigError, describe_os_error
+from fogd import config, modelfile, profiles, protocols, statsfile
+from fogd.cli.common import ArgumentParser, run
+from fogd.config import AXES, OPTION_BY_KEY, OPTIONS
+from fogd.daemon import RING_CAPACITY, Daemon, Reload
+from fogd.errors import ConfigError, DeviceError
 from fogd.flags import Flag
 from fogd.lexer import Lexer
-from fogd.outputs import OUT_FORMATS, Formatter, Writer, open_sink
+from fogd.outputs import Formatter, Writer, open_sink
 from fogd.reader import Reader
 from fogd.ring import Ring
-from fogd.serialio import open_port
+from fogd.sdnotify import Notifier
+from fogd.serialio import PortOpener, open_port
 
 PROG = "fogd"
-DEFAULT_MODEL = "/var/lib/fogd/model.json"
 DEMO_MODEL = Path(__file__).resolve().parent.parent / "data" / "demo-model.json"
 DEMO_PROFILE = "paper-test"
 DEMO_RATE_HZ = 100.0
 DEMO_SPEED = 60.0  # three chamber hours in three minutes
-AXES = ("x", "y", "z")
-MAX_CONFIG_BYTES = 1 << 20
-
-
-@dataclass(frozen=True)
-class Option:
-    """One setting: its command-line conversion (text -> value), default, help and, for text, its choices."""
-
-    key: str
-    convert: Callable[[str], Any]
-    default: Any
-    help: str
-    metavar: str | None = None
-    choices: tuple[str, ...] | None = None
-
-    @property
-    def numeric(self) -> bool:
-        return self.choices is None and self.convert is not str
-
-
-OPTIONS = (
-    Option("port", str, None, "serial port the FOG is on, e.g. /dev/ttyUSB0 (required unless --demo)", "PATH"),
-    Option("baud", positive_int, 921600, "baud rate of the port, and of --out when it is a serial port (default: %(default)s)", "BAUD"),
-    Option("protocol", str, "kvh-a", "wire protocol of the port (default: %(default)s)", choices=tuple(protocols.names())),
-    Option("model", str, DEFAULT_MODEL, f"model file from fogd-train (default: {DEFAULT_MODEL}; with --demo the bundled demo model)", "PATH"),
-    Option("out", str, "-", "where compensated frames go: '-' stdout, a file or serial/pty device path, or pty:PATH "
-           "(fogd makes a pty and links PATH to it) (default: %(default)s)", "SINK"),  # fmt: skip
-    Option("out_format", str, "same", "output format: 'same' re-encodes the input protocol with the compensated rate "
-           "and a fresh CRC; 'fogd' fogd compensated-output frames; 'csv' fogd-replay's columns; 'jsonl' one JSON "
-           "object per sample (default: %(default)s)", choices=OUT_FORMATS),  # fmt: skip
-    Option("rate_hz", positive_float, 1000.0, "FOG sample rate in Hz, for the temperature-rate estimator and for output "
-           "time where the protocol has no timestamp (KVH Format A has none) (default: %(default)s)", "HZ"),  # fmt: skip
-    Option("axis", str, "z", "gyro axis the model compensates; the other axes pass through untouched (default: %(default)s)", choices=AXES),
-    Option("temp_stale_s", positive_float, 2.0, "flag samples TEMP_STALE when the newest temperature arrived more than "
-           "this many seconds ago (default: %(default)s)", "S"),  # fmt: skip
-    Option("status_interval_s", positive_float, 10.0, "seconds between status lines on stderr (default: %(default)s)", "S"),
-    Option("duration_s", positive_float, None, "stop after this many seconds (default: run until SIGTERM/SIGINT)", "S"),
-)
-OPTION_BY_KEY = {option.key: option for option in OPTIONS}
+EXIT_NOT_RUNNING = 3  # `fogd --status`: no live daemon (as LSB status actions say)
+log = logging.getLogger("fogd.daemon")
 
 
 def parser() -> ArgumentParser:
@@ -82,10 +43,13 @@ def parser() -> ArgumentParser:
         prog=PROG,
         description="Real-time temperature compensation for a fibre-optic gyro: reads frames from --port, "
         "subtracts the model's thermal error f(T, dT/dt) from one axis and writes the result to --out. "
-        "SIGTERM or SIGINT stop cleanly (output flushed, exit 0).",
-        epilog=f"Config keys (--config): {', '.join(OPTION_BY_KEY)}. Output flags bits: "
-        f"{', '.join(f'{flag.name}={int(flag)}' for flag in Flag)}. Exit status: 0 ok, 2 usage, 65 bad model "
-        "file, 74 port or output cannot be opened, 78 bad config.",
+        "SIGTERM or SIGINT stop cleanly (output flushed, exit 0); SIGHUP reloads the config and the model; "
+        "SIGUSR1 logs the counters.",
+        epilog=f"Config keys: {', '.join(OPTION_BY_KEY)} (see config/fogd.yaml). Without --config, "
+        f"{config.CONFIG_DIR}/INSTANCE.yaml or {config.CONFIG_DIR}/fogd.yaml is read when it exists "
+        f"(${config.CONFIG_DIR_ENV} moves that directory). Output flags bits: "
+        f"{', '.join(f'{flag.name}={int(flag)}' for flag in Flag)}. Exit status: 0 ok, 2 usage, 3 --status: "
+        "not running, 65 bad model file, 74 port, output or stats file cannot be opened, 78 bad config.",
     )
     for option in OPTIONS:
         p.add_argument(
@@ -97,76 +61,41 @@ def parser() -> ArgumentParser:
             metavar=option.metavar,
             help=option.help % {"default": option.default},
         )
-    p.add_argument("--config", metavar="PATH.yaml", help="YAML file of settings (keys as above, e.g. out_format: csv)")
+    p.add_argument("--config", metavar="PATH.yaml", help="YAML file of settings (keys as above, e.g. out_format: csv); "
+                   "it must exist")  # fmt: skip
+    p.add_argument("--instance", metavar="NAME", default=config.DEFAULT_INSTANCE,
+                   help="name of this daemon (e.g. ttyUSB0 for fogd@ttyUSB0): picks NAME.yaml in the config "
+                   "directory and the default stats file (default: %(default)s)")  # fmt: skip
+    p.add_argument("--status", action="store_true", help="print the running daemon's stats file and exit "
+                   "(0 running, 3 not running)")  # fmt: skip
     p.add_argument("--demo", action="store_true", help="no hardware: compensate the built-in emulator with the bundled model")
     p.add_argument("-v", "--verbose", action="store_true", help="log debug detail")
     p.add_argument("-q", "--quiet", action="store_true", help="log warnings and errors only (no status lines)")
     return p
 
 
-def load_config(path: str) -> dict[str, Any]:
-    """Settings from a YAML file, each checked like its command-line option; ConfigError names the key."""
-    try:
-        with open(path, "rb") as stream:
-            text = stream.read(MAX_CONFIG_BYTES + 1)
-    except OSError as error:
-        raise ConfigError(f"cannot read config {describe_os_error(error)}") from None
-    if len(text) > MAX_CONFIG_BYTES:
-        raise ConfigError(f"{path}: larger than {MAX_CONFIG_BYTES // 1024} KiB; not a fogd config")
-    try:
-        document = yaml.safe_load(text)
-    except yaml.YAMLError as error:
-        where = getattr(error, "problem_mark", None)
-        line = f":{where.line + 1}" if where is not None else ""
-        raise ConfigError(f"{path}{line}: not valid YAML ({getattr(error, 'problem', None) or error})") from None
-    if document is None:
-        return {}
-    if not isinstance(document, dict):
-        raise ConfigError(f"{path}: expected a mapping of settings (key: value), found {type(document).__name__}")
-    settings = {}
-    for key, value in document.items():
-        option = OPTION_BY_KEY.get(key) if isinstance(key, str) else None
-        if option is None:
-            raise ConfigError(f"{path}: unknown key {key!r}; known keys: {', '.join(OPTION_BY_KEY)}")
-        settings[key] = _config_value(path, option, value)
-    return settings
+class Settings:
+    """Where the settings come from (config file path, command line), so SIGHUP can read them again."""
 
+    def __init__(self, args: argparse.Namespace) -> None:
+        self.demo = args.demo
+        self.instance = args.instance
+        self.path = args.config if args.config is not None else config.default_config_path(args.instance)
+        if args.config is not None and not os.path.exists(args.config):
+            raise ConfigError(f"{args.config}: no such config file")
+        self.command_line = {key: getattr(args, key) for key in OPTION_BY_KEY if hasattr(args, key)}
 
-def _config_value(path: str, option: Option, value: Any) -> Any:
-    if value is None and option.default is None:
-        return None
-    if option.numeric:
-        ok_type = isinstance(value, (int, float)) and not isinstance(value, bool)
-        expected = "a number"
-    else:
-        ok_type = isinstance(value, str)
-        expected = "a string"
-    if not ok_type:
-        raise ConfigError(f"{path}: key {option.key!r} must be {expected}, found {value!r:.40}")
-    if option.choices is not None and value not in option.choices:
-        raise ConfigError(f"{path}: key {option.key!r} is {value!r:.40}; valid values: {', '.join(option.choices)}")
-    try:
-        return option.convert(str(value))
-    except (argparse.ArgumentTypeError, ValueError) as error:
-        raise ConfigError(f"{path}: key {option.key!r}: {error}") from None
+    def read(self) -> dict[str, Any]:
+        """Defaults < config file < command line, checked; raises ConfigError."""
+        from_file = config.load(self.path) if self.path else {}
+        settings = config.merge(from_file, self.command_line)
+        if self.demo and "model" not in from_file and "model" not in self.command_line:
+            settings["model"] = str(DEMO_MODEL)
+        config.check(settings, demo=self.demo)
+        return settings
 
-
-def settings_from(args: argparse.Namespace) -> dict[str, Any]:
-    """Defaults, overridden by the config file, overridden by the command line."""
-    settings = {option.key: option.default for option in OPTIONS}
-    config = load_config(args.config) if args.config else {}
-    command_line = {key: getattr(args, key) for key in OPTION_BY_KEY if hasattr(args, key)}
-    settings.update(config)
-    settings.update(command_line)
-    if args.demo and "model" not in config and "model" not in command_line:
-        settings["model"] = str(DEMO_MODEL)
-    return settings
-
-
-def settings_given(args: argparse.Namespace) -> set[str]:
-    """The settings named on the command line or in the config file."""
-    given = {key for key in OPTION_BY_KEY if hasattr(args, key)}
-    return given | (set(load_config(args.config)) if args.config else set())
+    def given(self, key: str) -> bool:
+        return key in self.command_line or (self.path is not None and key in config.load(self.path))
 
 
 def demo(settings: dict[str, Any], protocol: protocols.Protocol, model, *, out_given: bool) -> int:
@@ -213,50 +142,96 @@ def configure_logging(verbose: bool, quiet: bool) -> None:
     logging.basicConfig(stream=sys.stderr, level=level, format="%(name)s: %(message)s")
 
 
+def status(args: argparse.Namespace) -> int:
+    """`fogd --status`: print the stats file of the daemon this command line names."""
+    setting = getattr(args, "stats_file", "auto")
+    path = setting if setting not in ("auto", None) else os.path.join(config.RUNTIME_DIR, f"{args.instance}.json")
+    snapshot = statsfile.read_stats(path)
+    print(statsfile.describe(snapshot))
+    return 0 if statsfile.is_live(snapshot) else EXIT_NOT_RUNNING
+
+
 def body(argv: Sequence[str] | None) -> int:
     args = parser().parse_args(argv)
-    settings = settings_from(args)
+    if args.status:
+        return status(args)
+    sources = Settings(args)
+    settings = sources.read()
     configure_logging(args.verbose, args.quiet)
-    if settings["port"] is None and not args.demo:
-        raise ConfigError("no port: give --port PATH (or port: in the config), or try --demo")
-    axis = AXES.index(settings["axis"])
-    protocol_options: dict[str, Any] = {} if settings["protocol"] == "ascii" else {"comp_axes": (axis,)}
-    if settings["protocol"] == "ascii" and axis != 2:
-        raise ConfigError("protocol ascii carries the z axis only; use --axis z")
-    protocol = protocols.get(settings["protocol"], **protocol_options)
+    protocol = make_protocol(settings)
     model = modelfile.load(settings["model"])
     if args.demo:
-        return demo(settings, protocol, model, out_given="out" in settings_given(args))
-    return serve(settings, protocol, model)
+        return demo(settings, protocol, model, out_given=sources.given("out"))
+    return serve(settings, protocol, model, sources=sources)
 
 
-def serve(settings: dict[str, Any], protocol: protocols.Protocol, model, *, on_daemon=None) -> int:
+def make_protocol(settings: dict[str, Any]) -> protocols.Protocol:
+    axis = AXES.index(settings["axis"])
+    options: dict[str, Any] = {} if settings["protocol"] == "ascii" else {"comp_axes": (axis,)}
+    return protocols.get(settings["protocol"], **options)
+
+
+def reloader(sources: Settings, running: dict[str, Any]):
+    """SIGHUP's work, run off the data path: read the config again, validate the model, and say which changed
+    settings need a restart (those that open the port or the output, or shape the estimator)."""
+
+    def reload() -> Reload:
+        settings = sources.read()
+        model = modelfile.load(settings["model"])
+        for option in OPTIONS:
+            if not option.reloadable and settings[option.key] != running[option.key]:
+                log.warning("reload: %s changed to %r; restart fogd to apply it", option.key, settings[option.key])
+        log.info("reload: model %s (%s) validated", model.name, model.method)
+        return Reload(model, settings["temp_stale_s"], settings["status_interval_s"])
+
+    return reload
+
+
+def serve(settings: dict[str, Any], protocol: protocols.Protocol, model, *, on_daemon=None, sources: Settings | None = None) -> int:
     """Open the port and the sink, run the daemon until a signal or the duration, and shut down cleanly."""
     path, baud = settings["port"], settings["baud"]
+    instance = sources.instance if sources is not None else config.DEFAULT_INSTANCE
+    stats_path = config.stats_path(settings["stats_file"], instance)
     port = open_port(path, baud)
     try:
         sink = open_sink(settings["out"], baud)
     except BaseException:
         port.close()
         raise
-    reader = Reader(lambda: open_port(path, baud), Lexer(protocol), Ring(RING_CAPACITY), port=port)
+    reader = Reader(PortOpener(path, baud), Lexer(protocol), Ring(RING_CAPACITY), port=port)
+    axis = AXES.index(settings["axis"])
     daemon = Daemon(
         reader=reader,
         writer=Writer(sink),
-        formatter=Formatter(settings["out_format"], protocol, AXES.index(settings["axis"])),
+        formatter=Formatter(settings["out_format"], protocol, axis),
         model=model,
         rate_hz=settings["rate_hz"],
-        axis=AXES.index(settings["axis"]),
+        axis=axis,
         temp_stale_s=settings["temp_stale_s"],
         status_interval_s=settings["status_interval_s"],
         duration_s=settings["duration_s"],
+        notifier=Notifier(),
+        reload=reloader(sources, settings) if sources is not None else None,
+        stats_path=stats_path,
+        info={"instance": instance, "port": path, "protocol": protocol.name, "out": settings["out"]},
     )
+    if settings["metrics_port"] is not None:
+        from fogd import metrics_http
+
+        try:
+            metrics_http.serve(daemon.snapshot, settings["metrics_address"], settings["metrics_port"])
+        except DeviceError:
+            port.close()
+            daemon.writer.sink.close()
+            raise
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: daemon.stop())
-    logging.getLogger("fogd.daemon").info(
-        "reading %s (%s, %g Hz), model %s (%s), axis %s, output %s as %s",
+    signal.signal(signal.SIGHUP, lambda *_: daemon.request_reload())
+    signal.signal(signal.SIGUSR1, lambda *_: daemon.request_counters())
+    log.info(
+        "reading %s (%s, %g Hz), model %s (%s), axis %s, output %s as %s%s",
         path, protocol.name, settings["rate_hz"], model.name, model.method, settings["axis"], settings["out"],
-        settings["out_format"],
+        settings["out_format"], f", stats {stats_path}" if stats_path else "",
     )  # fmt: skip
     if on_daemon is not None:
         on_daemon(daemon)
