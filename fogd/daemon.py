@@ -6,23 +6,36 @@ line, and on stop drains the ring and flushes the writer.
 Temperature may arrive in its own frames at its own rate: each rate sample gets the newest temperature that
 arrived before it, flagged TEMP_STALE when that temperature is older (in receive time) than `temp_stale_s`.
 Output time is the device time where the protocol carries one, else sample count / `rate_hz`.
+
+Service duties live here too, all on the loop's own thread so nothing races the compensator: signals only set
+flags (`stop`, `request_reload`, `request_counters`); a reload is prepared (config read, model validated) on a
+helper thread and swapped in between two batches, so no frame is lost or compensated twice. The estimator
+state survives a swap when the new model has the same inputs (same estimator settings), else it restarts
+with a warm-up (logged). systemd is told READY=1, a STATUS= summary, and WATCHDOG=1 only while the reader
+thread is alive and coming round its loop: a hung reader stops the pings and systemd restarts fogd.
 """
 
 from __future__ import annotations
 
+import json
 import logging
+import os
 import threading
 import time
 from dataclasses import asdict, dataclass
+from typing import Callable
 
 import numpy as np
 
 from fogd.compensator import Compensator
+from fogd.errors import FogdError
 from fogd.flags import describe
 from fogd.frozen import FrozenModel
 from fogd.outputs import Formatter, OutputBatch, Writer, rate_row_indices
 from fogd.reader import Reader
 from fogd.ring import Ring
+from fogd.sdnotify import Notifier
+from fogd.statsfile import write_stats
 
 log = logging.getLogger("fogd.daemon")
 status_log = logging.getLogger("fogd.status")
@@ -32,6 +45,9 @@ MAX_BATCH = 4096  # samples per compensation step, which bounds a chunk's size i
 IDLE_WAIT_S = 0.05
 FLUSH_TIMEOUT_S = 1.5
 RESTART_DELAY_S = 0.5
+NOTIFY_STATUS_S = 2.0  # how often systemd's STATUS= line is refreshed
+STATS_EVERY_S = 1.0
+READER_STALL_S = 2.0  # a reader that has not come round its loop for this long is hung (its waits are <= 0.2 s)
 
 
 class TemperatureHold:
@@ -75,6 +91,25 @@ class LoopCounters:
     samples_compensated: int = 0
     reader_deaths: int = 0
     writer_deaths: int = 0
+    reloads: int = 0
+    reloads_refused: int = 0
+
+
+@dataclass(frozen=True)
+class Reload:
+    """What a SIGHUP may change without a restart (validated before the daemon sees it)."""
+
+    model: FrozenModel
+    temp_stale_s: float
+    status_interval_s: float
+
+
+@dataclass
+class Latency:
+    """Seconds from the read that completed a frame to its compensated output being queued for the writer."""
+
+    last_s: float = float("nan")
+    max_s: float = 0.0  # since the last status line
 
 
 @dataclass
@@ -104,21 +139,37 @@ class Daemon:
         temp_stale_s: float,
         status_interval_s: float,
         duration_s: float | None = None,
+        notifier: Notifier | None = None,
+        reload: Callable[[], Reload] | None = None,
+        stats_path: str | None = None,
+        info: dict | None = None,
     ) -> None:
         self.reader = reader
         self.writer = writer
         self.formatter = formatter
         self.model = model
         self.compensator = Compensator(model, rate_hz)
+        self.rate_hz = rate_hz
         self.axis = axis
         self.temp_stale_s = temp_stale_s
         self.status_interval_s = status_interval_s
         self.duration_s = duration_s
         self.counters = LoopCounters()
         self.latest = Latest()
+        self.latency = Latency()
         self._stop = threading.Event()
         self.clock = SampleClock(rate_hz)
         self.temperature = TemperatureHold()
+        self.notifier = notifier or Notifier({})
+        self._reload = reload
+        self.stats_path = stats_path
+        self.info = info or {}  # static facts for the stats file (port, protocol, instance)
+        self.started_s = time.monotonic()
+        self._reload_requested = threading.Event()
+        self._counters_requested = threading.Event()
+        self._reload_thread: threading.Thread | None = None
+        self._reload_ready: Reload | None = None
+        self._stall_logged = False
 
     @property
     def ring(self) -> Ring:
@@ -128,11 +179,22 @@ class Daemon:
         """Ask `run()` to finish (safe from a signal handler)."""
         self._stop.set()
 
+    def request_reload(self) -> None:
+        """Ask for the config and model to be read again (safe from a signal handler)."""
+        self._reload_requested.set()
+
+    def request_counters(self) -> None:
+        """Ask for the counters to be logged (safe from a signal handler)."""
+        self._counters_requested.set()
+
     def run(self) -> None:
-        started_s = time.monotonic()
+        started_s = self.started_s = time.monotonic()
         next_status_s = started_s + self.status_interval_s
+        next_notify_s = next_stats_s = next_pet_s = started_s
+        pet_every_s = self.notifier.watchdog_interval_s
         self.writer.start(self.formatter.header())
         self.reader.start()
+        self.notifier.send("READY=1", f"STATUS={self.short_status()}")
         try:
             while not self._stop.is_set():
                 now_s = time.monotonic()
@@ -140,17 +202,92 @@ class Daemon:
                     break
                 if now_s >= next_status_s:
                     status_log.info(self.status_line())
+                    self.latency.max_s = 0.0
                     next_status_s = now_s + self.status_interval_s
+                if self._counters_requested.is_set():
+                    self._counters_requested.clear()
+                    status_log.info("%s | counters %s", self.status_line(), json.dumps(self.counters_dict()))
+                self._handle_reload()
                 self._watch_threads()
+                if pet_every_s is not None and now_s >= next_pet_s and self.healthy(now_s):
+                    self.notifier.send("WATCHDOG=1")
+                    next_pet_s = now_s + pet_every_s
+                if now_s >= next_notify_s:
+                    self.notifier.send(f"STATUS={self.short_status()}")
+                    next_notify_s = now_s + NOTIFY_STATUS_S
+                if self.stats_path is not None and now_s >= next_stats_s:
+                    write_stats(self.stats_path, self.snapshot())
+                    next_stats_s = now_s + STATS_EVERY_S
                 self.reader.data_ready.wait(IDLE_WAIT_S)
                 self.reader.data_ready.clear()
                 self._drain()
         finally:
+            self.notifier.send("STOPPING=1")
             self.reader.stop()
             self._drain()
             if not self.writer.close(FLUSH_TIMEOUT_S):
                 log.warning("output did not take the last frames within %.1f s", FLUSH_TIMEOUT_S)
             status_log.info("final: %s", self.status_line())
+            if self.stats_path is not None:
+                write_stats(self.stats_path, {**self.snapshot(), "running": False})
+
+    def healthy(self, now_s: float) -> bool:
+        """Whether the data path works: the reader thread alive and coming round its loop (reading, or
+        waiting for a lost port to return), and the writer alive. Decides the systemd watchdog ping."""
+        stalled_s = now_s - self.reader.heartbeat_s
+        if stalled_s > READER_STALL_S and self.reader.alive:
+            if not self._stall_logged:
+                log.error("reader thread stuck for %.1f s; no watchdog ping (systemd will restart fogd)", stalled_s)
+                self._stall_logged = True
+            return False
+        self._stall_logged = False
+        return self.reader.alive and self.writer.alive
+
+    def _handle_reload(self) -> None:
+        """Start preparing a requested reload on a helper thread; swap in a prepared one (between batches)."""
+        if self._reload_requested.is_set() and self._reload_thread is None:
+            self._reload_requested.clear()
+            if self._reload is None:
+                log.warning("SIGHUP: nothing to reload")
+                return
+            self.notifier.send("RELOADING=1", f"MONOTONIC_USEC={time.clock_gettime_ns(time.CLOCK_MONOTONIC) // 1000}")
+            self._reload_thread = threading.Thread(target=self._prepare_reload, name="fogd-reload", daemon=True)
+            self._reload_thread.start()
+        if self._reload_thread is not None and not self._reload_thread.is_alive():
+            self._reload_thread = None
+            prepared, self._reload_ready = self._reload_ready, None
+            if prepared is not None:
+                self._drain()  # the batches already received are compensated with the model they arrived under
+                self.apply(prepared)
+            self.notifier.send("READY=1", f"STATUS={self.short_status()}")
+
+    def _prepare_reload(self) -> None:
+        try:
+            self._reload_ready = self._reload()
+        except FogdError as error:
+            self.counters.reloads_refused += 1
+            log.error("reload refused: %s; keeping model %s", error, self.model.name)
+        except Exception as error:  # a bug must not take the running daemon down with it
+            self.counters.reloads_refused += 1
+            log.error("reload failed (%r); keeping model %s", error, self.model.name)
+
+    def apply(self, reload: Reload) -> None:
+        """Use a validated reload from the next batch on."""
+        self.temp_stale_s = reload.temp_stale_s
+        self.status_interval_s = reload.status_interval_s
+        old, model = self.compensator, reload.model
+        new = Compensator(model, self.rate_hz)
+        kept = model.inputs == old.model.inputs
+        if kept:
+            # compensator.py has no public hand-over of its state: carry the estimator bank and held temperature
+            new.bank = old.bank
+            new._held_temp_c = old._held_temp_c
+        self.compensator, self.model = new, model
+        self.counters.reloads += 1
+        log.warning(
+            "reloaded: model %s (%s); estimator state %s", model.name, model.method,
+            "kept (same inputs)" if kept else "reset (inputs differ): warm-up again",
+        )  # fmt: skip
 
     def _drain(self) -> None:
         while True:
@@ -170,6 +307,10 @@ class Daemon:
             rates, temp_c[rows], rate_valid=usable, temp_stale=temp_age_s[rows] > self.temp_stale_s
         )
         self.counters.samples_compensated += rows.size
+        if len(records):
+            latency_s = time.monotonic() - float(records["t_rx_s"][0])  # the oldest record waited longest
+            self.latency.last_s = latency_s
+            self.latency.max_s = max(self.latency.max_s, latency_s)
         if rows.size:
             last = -1
             self.latest = Latest(
@@ -201,9 +342,36 @@ class Daemon:
         return (
             f"in {frames_in or 0} | out {writer.frames_written} dropped {dropped_out} | drops {drops or 'none'} | "
             f"ring overruns {self.ring.overruns} | reconnects {reader.reconnects} | "
+            f"latency {1e3 * self.latency.last_s:.1f} ms (max {1e3 * self.latency.max_s:.1f}) | "
             f"T {latest.temp_c:.2f} C dT/dt {latest.temp_rate_cps:+.5f} C/s comp {latest.comp_dph:+.4f} deg/h "
             f"({describe(latest.flags)}) | model {self.model.name}"
         )
+
+    def short_status(self) -> str:
+        """One short line for systemd's STATUS= (shown by systemctl status)."""
+        latest = self.latest
+        link = "" if getattr(self.reader, "connected", True) else "port lost, waiting | "
+        return (
+            f"{link}{self.counters.samples_compensated} samples | T {latest.temp_c:.2f} C | "
+            f"comp {latest.comp_dph:+.4f} deg/h | model {self.model.name}"
+        )
+
+    def snapshot(self) -> dict:
+        """Everything an operator reads from the stats file, `fogd --status` or the metrics endpoint."""
+        now_s = time.monotonic()
+        return {
+            **self.info,
+            "pid": os.getpid(),
+            "running": not self._stop.is_set(),
+            "time_unix_s": time.time(),
+            "uptime_s": now_s - self.started_s,
+            "connected": bool(getattr(self.reader, "connected", True)),
+            "model": {"name": self.model.name, "method": self.model.method},
+            "latest": asdict(self.latest),
+            "latency_s": {"last": self.latency.last_s, "max_since_status": self.latency.max_s},
+            "counters": self.counters_dict(),
+            "status": self.status_line(),
+        }
 
     def counters_dict(self) -> dict:
         """Every counter, for tests and the final log line."""

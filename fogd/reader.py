@@ -4,14 +4,21 @@ samples into the ring. It never evaluates the model and never waits for the writ
 Reads take `in_waiting or 1` bytes (pyserial's ReaderThread idiom): one byte blocks up to the port's read
 timeout, and whatever else has arrived comes in the same read. When the port disappears (a USB unplug:
 pyserial raises "device reports readiness to read but returned no data") the reader logs it once, drops the
-half-received frame, and reopens the same path with capped exponential backoff until it comes back, so a
-device that returns behind the same symlink is picked up too. The rate estimator's state is kept across
-the gap: the compensator treats the samples after the gap as following on from those before it.
+half-received frame, and reopens the same path until it comes back, so a device that returns behind the same
+symlink is picked up too. It looks for the path every `PRESENCE_POLL_S` (a stat costs nothing) and opens it as
+soon as it appears; opens that fail while the path exists (busy, permission) back off exponentially up to
+`BACKOFF_MAX_S`. The rate estimator's state is kept across the gap: the compensator treats the samples after
+the gap as following on from those before it (a chamber temperature moves little in a few seconds).
+
+`heartbeat_s` is the monotonic time the thread last came round its loop (a read returned, even empty after
+the read timeout, or a reopen attempt was made); the daemon's watchdog uses it to tell a hung reader from a
+quiet port.
 """
 
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 from dataclasses import dataclass, field
@@ -28,6 +35,7 @@ log = logging.getLogger("fogd.reader")
 
 BACKOFF_FIRST_S = 0.05
 BACKOFF_MAX_S = 2.0
+PRESENCE_POLL_S = 0.2
 
 
 @dataclass
@@ -51,6 +59,8 @@ class Reader:
         self.counters = ReaderCounters()
         self.data_ready = threading.Event()  # set after each push, so the consumer need not poll
         self.error: BaseException | None = None  # what killed the thread, if anything did
+        self.heartbeat_s = time.monotonic()
+        self.connected = port is not None
         self._stopping = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -81,6 +91,7 @@ class Reader:
                 except (serial.SerialException, OSError) as error:
                     self._lost(error)
                     continue
+                self.heartbeat_s = time.monotonic()
                 if data:
                     self._frame(data, time.monotonic())
         except BaseException as error:  # the daemon notices a dead reader through `alive` and `error`
@@ -104,23 +115,37 @@ class Reader:
         name = getattr(self.port, "port", "port")
         log.warning("%s: port lost (%s); reopening with backoff", name, error)
         self.counters.disconnects += 1
+        self.connected = False
         self.lexer.flush()
         self._close()
 
     def _reopen(self) -> bool:
-        """Open the port again, retrying with backoff; False if asked to stop first."""
+        """Open the port again: at once when its path appears, with backoff while opening it fails; False if
+        asked to stop first."""
         delay_s = BACKOFF_FIRST_S
+        next_try_s = time.monotonic() + BACKOFF_FIRST_S
         last_message = ""
-        while not self._stopping.wait(delay_s):
+        path = getattr(self._open_port, "path", None)
+        was_present = path is None or os.path.exists(path)
+        while not self._stopping.wait(
+            min(PRESENCE_POLL_S, max(0.01, next_try_s - time.monotonic())) if was_present else PRESENCE_POLL_S
+        ):
+            self.heartbeat_s = now_s = time.monotonic()
+            present = path is None or os.path.exists(path)
+            appeared, was_present = present and not was_present, present
+            if not present or (now_s < next_try_s and not appeared):
+                continue
             try:
                 self.port = self._open_port()
             except DeviceError as error:
                 if str(error) != last_message:  # say each new reason once, not once per retry
                     log.info("%s; retrying", error)
                     last_message = str(error)
+                next_try_s = time.monotonic() + delay_s
                 delay_s = min(2 * delay_s, BACKOFF_MAX_S)
                 continue
             self.counters.reconnects += 1
+            self.connected = True
             log.warning("%s: port back; reading again", self.port.port)
             return True
         return False

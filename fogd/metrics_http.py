@@ -1,0 +1,87 @@
+"""Optional Prometheus metrics: a stdlib HTTP server on its own thread answering GET /metrics with the
+daemon's counters in the text exposition format. Off unless `metrics_port` is set; binds 127.0.0.1 unless
+`metrics_address` says otherwise. It only reads a snapshot, so a slow scraper never touches the data path.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import socket
+import threading
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from typing import Any, Callable
+
+from fogd.errors import DeviceError
+
+log = logging.getLogger("fogd.metrics")
+
+
+def render(snapshot: dict[str, Any]) -> str:
+    """The snapshot as Prometheus text: counters as fogd_*_total, the latest values as gauges."""
+    lines: list[str] = []
+
+    def metric(name: str, kind: str, help_text: str, samples: list[tuple[str, Any]]) -> None:
+        lines.append(f"# HELP {name} {help_text}")
+        lines.append(f"# TYPE {name} {kind}")
+        for labels, value in samples:
+            number = float(value) if isinstance(value, (int, float)) and value is not None else math.nan
+            lines.append(f"{name}{labels} {number!r}".replace("nan", "NaN"))
+
+    counters = snapshot["counters"]
+    reader, lexer, writer, loop = counters["reader"], counters["lexer"], counters["writer"], counters["loop"]
+    metric("fogd_frames_in_total", "counter", "Frames decoded from the port, by kind.",
+           [(f'{{kind="{kind}"}}', count) for kind, count in reader["frames_in"].items()])
+    metric("fogd_lexer_total", "counter", "Lexer counters (drops by kind, sequence gaps, ...).",
+           [(f'{{counter="{name}"}}', value) for name, value in lexer.items()])
+    metric("fogd_frames_out_total", "counter", "Frames written to the output.", [("", writer["frames_written"])])
+    metric("fogd_frames_dropped_out_total", "counter", "Output frames dropped, by reason.",
+           [(f'{{reason="{name.removeprefix("frames_dropped_")}"}}', value)
+            for name, value in writer.items() if name.startswith("frames_dropped_")])  # fmt: skip
+    metric("fogd_ring_overruns_total", "counter", "Samples dropped because the ring was full.",
+           [("", counters["ring_overruns"])])
+    metric("fogd_port_disconnects_total", "counter", "Times the port was lost.", [("", reader["disconnects"])])
+    metric("fogd_samples_compensated_total", "counter", "Rate samples compensated.", [("", loop["samples_compensated"])])
+    metric("fogd_reloads_total", "counter", "Reloads applied (SIGHUP).", [("", loop["reloads"])])
+    metric("fogd_connected", "gauge", "1 while the port is open.", [("", int(bool(snapshot["connected"])))])
+    latest = snapshot["latest"]
+    for key, help_text in (("temp_c", "Temperature used, C."), ("temp_rate_cps", "Temperature rate, C/s."),
+                           ("comp_dph", "Current compensation, deg/h."), ("rate_comp_dph", "Compensated rate, deg/h.")):
+        metric(f"fogd_{key}", "gauge", help_text, [("", latest[key])])
+    metric("fogd_latency_seconds", "gauge", "Read-to-output latency of the newest batch.",
+           [("", snapshot["latency_s"]["last"])])
+    return "\n".join(lines) + "\n"
+
+
+class _Server(ThreadingHTTPServer):
+    daemon_threads = True
+
+
+def serve(snapshot: Callable[[], dict[str, Any]], address: str, port: int) -> ThreadingHTTPServer:
+    """Start the endpoint on a daemon thread; DeviceError (one line) if the address cannot be bound."""
+
+    class Handler(BaseHTTPRequestHandler):
+        def do_GET(self) -> None:  # noqa: N802 (http.server's name)
+            if self.path.split("?")[0] != "/metrics":
+                self.send_error(404, "only /metrics here")
+                return
+            body = render(snapshot()).encode()
+            self.send_response(200)
+            self.send_header("Content-Type", "text/plain; version=0.0.4; charset=utf-8")
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+
+        def log_message(self, *args: Any) -> None:  # scrapes are not worth a journal line each
+            pass
+
+    server_class = _Server
+    if ":" in address:
+        server_class = type("_Server6", (_Server,), {"address_family": socket.AF_INET6})
+    try:
+        server = server_class((address, port), Handler)
+    except OSError as error:
+        raise DeviceError(f"metrics: cannot listen on {address} port {port}: {error.strerror or error}") from None
+    threading.Thread(target=server.serve_forever, name="fogd-metrics", daemon=True).start()
+    log.info("metrics on http://%s:%d/metrics", address if ":" not in address else f"[{address}]", port)
+    return server
