@@ -418,3 +418,42 @@ def test_command_line_wins_over_config(tmp_path, gyro, model_path):
     finally:
         assert fogd.terminate()[0] == 0
     assert out.read_text().startswith("t_s,rate_dph") and not (tmp_path / "from-config.out").exists()
+
+
+def test_multi_scale_guarded_model_through_fogd_equals_replay(tmp_path):
+    """A kernel model on temperature, two eq. 16 windows and a lagged temperature, with a joint-space domain
+    guard (part of the run is OUT_OF_DOMAIN and uses the linear fallback): the daemon equals replay."""
+    from fogd.inputs import parse_inputs
+
+    inputs = parse_inputs("temp,rate@0.5,rate@1.5,lag@0.8", average_s=0.05)
+    model = tmp_path / "multi.json"
+    doc = modelfile.document(
+        name="e2e-multi", method="pso-svr", inputs=inputs,
+        x_mean=np.array([22.0, 1.0, 1.0, 21.0]), x_scale=np.array([2.0, 1.0, 1.0, 2.0]), y_mean=0.1, y_scale=0.5,
+        domain_min=np.array([-40.0, -5.0, -5.0, -40.0]), domain_max=np.array([80.0, 5.0, 5.0, 80.0]),
+        params={"support_vectors": [[0.0, 0.5, 0.5, 0.0], [-1.0, 1.0, 0.0, -1.0]], "dual_coef": [0.7, -0.4],
+                "gamma": 0.3, "trend_coef": [0.2, 0.1, 0.05, -0.1], "intercept": 0.01},
+        reference_dph=0.0, training={}, metrics={}, created_utc="2024-01-01T00:00:00Z",
+        domain_guard={"points": [[t, 1.0, 1.0, t] for t in np.linspace(-1.0, 0.5, 16)], "threshold": 0.6,
+                      "fallback": {"method": "linear", "params": {"coef": [0.3, 0.0, 0.0, 0.0], "intercept": 0.0}}},
+    )  # fmt: skip
+    modelfile.save(model, doc)
+    samples = run_samples("kvh-a", seed=5)
+    run_csv, out = tmp_path / "run.csv", tmp_path / "out.csv"
+    write_run(run_csv, samples)
+    emu = Emu(tmp_path, run_csv, "kvh-a")
+    try:
+        fogd = start_fogd(tmp_path, emu.path, model, "--protocol", "kvh-a", "--out-format", "csv", "--out", str(out))
+        try:
+            emu.finish()
+            wait_for_rows(out, SAMPLES + 1)
+            status, _ = fogd.terminate()
+        finally:
+            fogd.kill()
+    finally:
+        emu.kill()
+    assert status == 0, fogd.stderr
+    output, expected = np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2), replayed(tmp_path, model, samples)
+    assert_same_as_replay(output, expected)
+    flags = expected[:, 6].astype(int)
+    assert ((flags & 32) != 0).any() and ((flags & 32) == 0).sum() > SAMPLES // 4  # both branches were used
