@@ -1,0 +1,54 @@
+"""--method auto: every family on every input set, same blocks, held-out RMSE, the margin rule."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from fogd.models import FitOptions
+from fogd.runio import Run
+from fogd.selection import MARGIN, Candidate, choose, input_sets, select, table_lines
+from fogd.training import TrainConfig
+
+
+def synthetic_run(name: str, seed: int, up: bool) -> Run:
+    rate_hz, n = 2.0, 2 * 3600 * 2
+    t_s = np.arange(n) / rate_hz
+    temp = 10 + 30 * (t_s / t_s[-1] if up else 1 - t_s / t_s[-1])
+    temp = np.round(temp / 0.0625) * 0.0625
+    rng = np.random.default_rng(seed)
+    rate = 0.02 * (temp - 25) + 0.001 * (temp - 25) ** 2 + rng.normal(0, 0.05, n)
+    return Run(name, t_s, rate, temp, rate_hz, str(seed), {})
+
+
+def test_auto_scores_every_candidate_on_the_same_blocks_and_picks_the_best():
+    runs = [synthetic_run("up.csv", 1, True), synthetic_run("down.csv", 2, False)]
+    config = TrainConfig(block_s=100.0, fit=FitOptions(particles=4, iterations=2, progress=False), domain_guard=False)
+    sets = input_sets(["temp,rate@50", "temp,rate@50,lag@300"], 0.5, 0.0)
+    chosen, candidates = select(runs, config, sets, families=("linear", "ls-poly", "pso-svr"))
+    assert [(c.method, len(c.inputs)) for c in candidates] == [(m, d) for d in (2, 3) for m in ("linear", "ls-poly", "pso-svr")]
+    targets = {c.trained.error_dph.tobytes() for c in candidates}
+    assert len(targets) == 1  # one set of blocks and targets for every candidate
+    assert chosen.held_out_rmse_dph == min(c.held_out_rmse_dph for c in candidates) or chosen is candidates[0]
+    # the polynomial's order is chosen by held-out error, and order 1 is linear: never worse than linear
+    poly = candidates[1]
+    assert 1 <= poly.hyperparameters["degree"] <= 5
+    assert poly.held_out_rmse_dph <= candidates[0].held_out_rmse_dph * (1 + 1e-9)
+    lines = table_lines(candidates, chosen)
+    assert len(lines) == 1 + len(candidates) and any("<- chosen" in line for line in lines)
+
+
+def _candidate(method: str, rmse: float) -> Candidate:
+    return Candidate(method, (), rmse, {}, 0.0)
+
+
+def test_a_complex_candidate_must_beat_linear_by_the_margin():
+    linear = _candidate("linear", 1.0)
+    assert choose([linear, _candidate("pso-svr", 1.0 - MARGIN / 2)]) is linear
+    better = _candidate("pso-svr", 1.0 - 2 * MARGIN)
+    assert choose([linear, better]) is better
+
+
+def test_bad_auto_inputs_are_refused():
+    with pytest.raises(ValueError, match="--inputs item"):
+        input_sets(["temp,rate"], 0.5, 0.0)
