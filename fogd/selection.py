@@ -3,9 +3,11 @@
 Every candidate (a family from `FAMILIES` on an input set from `DEFAULT_INPUT_SETS` or `--auto-inputs`) is
 fitted to the very same blocks and targets (all input sets start their blocks after the longest estimator
 window of any of them) and scored by the pooled RMSE on held-out folds: leave-one-run-out with several runs,
-blocked time folds with one. The candidate with the lowest held-out RMSE wins; a candidate more complex
-than `linear` on the paper's inputs must beat it by `MARGIN` (relative), since the tuned families' scores
-are slightly optimistic (their hyper-parameters were chosen on the same folds). Regularisation is tuned by
+blocked time folds with one. Parsimony, because the tuned families' scores are slightly optimistic (their
+hyper-parameters were chosen on the same folds) and extra inputs give more room to fit one run's history:
+start from `linear` on the first input set; take the best candidate on that set if it beats linear by
+`MARGIN` (relative); then take a candidate on a larger input set only if it beats the current choice by
+`MARGIN` again. Otherwise the lowest held-out RMSE wins. Regularisation is tuned by
 held-out error only: ls-poly's order (1..5), rbf-nn's L1 alpha, pso-svr's C, epsilon, sigma (cv fitness).
 
 Cost: pso-svr runs with a smaller swarm inside auto (`AUTO_PARTICLES` x `AUTO_ITERATIONS`, 20 x 20 unless
@@ -92,10 +94,13 @@ def select(runs, config: TrainConfig, sets: list[tuple[InputSpec, ...]], familie
 
 
 def choose(candidates: list[Candidate]) -> Candidate:
-    """Lowest held-out RMSE; the first candidate (linear on the first input set) unless beaten by MARGIN."""
-    baseline = candidates[0]
-    best = min(candidates, key=lambda c: c.held_out_rmse_dph)
-    return best if best.held_out_rmse_dph < (1.0 - MARGIN) * baseline.held_out_rmse_dph else baseline
+    """The parsimonious choice (module docstring): each step up in complexity must win by MARGIN."""
+    chosen = candidates[0]
+    for inputs in dict.fromkeys(c.inputs for c in candidates):  # input sets in the order given
+        best = min((c for c in candidates if c.inputs == inputs), key=lambda c: c.held_out_rmse_dph)
+        if best.held_out_rmse_dph < (1.0 - MARGIN) * chosen.held_out_rmse_dph:
+            chosen = best
+    return chosen
 
 
 def _fit_family(runs, config: TrainConfig, prepared, method: str) -> Trained:

@@ -29,7 +29,7 @@ def test_auto_scores_every_candidate_on_the_same_blocks_and_picks_the_best():
     assert [(c.method, len(c.inputs)) for c in candidates] == [(m, d) for d in (2, 3) for m in ("linear", "ls-poly", "pso-svr")]
     targets = {c.trained.error_dph.tobytes() for c in candidates}
     assert len(targets) == 1  # one set of blocks and targets for every candidate
-    assert chosen.held_out_rmse_dph == min(c.held_out_rmse_dph for c in candidates) or chosen is candidates[0]
+    assert chosen is choose(candidates) and chosen.held_out_rmse_dph <= candidates[0].held_out_rmse_dph
     # the polynomial's order is chosen by held-out error, and order 1 is linear: never worse than linear
     poly = candidates[1]
     assert 1 <= poly.hyperparameters["degree"] <= 5
@@ -38,15 +38,19 @@ def test_auto_scores_every_candidate_on_the_same_blocks_and_picks_the_best():
     assert len(lines) == 1 + len(candidates) and any("<- chosen" in line for line in lines)
 
 
-def _candidate(method: str, rmse: float) -> Candidate:
-    return Candidate(method, (), rmse, {}, 0.0)
+def _candidate(method: str, rmse: float, inputs: tuple = ()) -> Candidate:
+    return Candidate(method, inputs, rmse, {}, 0.0)
 
 
-def test_a_complex_candidate_must_beat_linear_by_the_margin():
+def test_each_step_up_in_complexity_must_win_by_the_margin():
     linear = _candidate("linear", 1.0)
     assert choose([linear, _candidate("pso-svr", 1.0 - MARGIN / 2)]) is linear
     better = _candidate("pso-svr", 1.0 - 2 * MARGIN)
     assert choose([linear, better]) is better
+    richer_by_little = _candidate("pso-svr", better.held_out_rmse_dph * (1 - MARGIN / 2), inputs=("lag",))
+    assert choose([linear, better, richer_by_little]) is better
+    richer_by_much = _candidate("rbf-nn", better.held_out_rmse_dph * (1 - 2 * MARGIN), inputs=("lag",))
+    assert choose([linear, better, richer_by_little, richer_by_much]) is richer_by_much
 
 
 def test_bad_auto_inputs_are_refused():
