@@ -9,7 +9,8 @@ the best guess it has. T - lag(T) is then a proxy for the radial gradient IEEE 9
 Both forms, streaming (`LagFilter.update`, any chunk size, O(1) per sample whatever tau) and batch
 (`lag_batch`), run the very same recurrence: scipy's `lfilter` with the state carried from chunk to chunk in
 `zi`. The recurrence is computed sample by sample in the same order whatever the chunking, so both forms give
-the same floats bit for bit (tests/test_lag.py proves it for arbitrary chunkings).
+the same floats bit for bit (tests/test_lag.py proves it for arbitrary chunkings). scipy is imported on the
+first update, not with this module: a daemon whose model has no lag input never maps it (about 70 MB of RSS).
 """
 
 from __future__ import annotations
@@ -17,7 +18,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.signal import lfilter
 
 MAX_TAU_S = 86400.0
 
@@ -48,6 +48,7 @@ class LagFilter:
             return np.empty(0)
         if self._state is None:
             self._state = -self._a[1:] * temp_c[0]  # steady state at the first input
+        from scipy.signal import lfilter
         out, self._state = lfilter(self._b, self._a, temp_c, zi=self._state)
         return out
 

@@ -302,6 +302,22 @@ def test_same_output_is_kvh_with_compensated_z(tmp_path, gyro, model_path):
                for out_frame, in_frame in zip(decoded, frames))  # fmt: skip
 
 
+def test_the_daemon_maps_neither_scikit_learn_nor_scipy(tmp_path, gyro, model_path):
+    """The frozen evaluators are numpy only, and a model without lag inputs needs nothing of scipy: the
+    running daemon, after compensating frames, has neither library's files mapped (memory, attack surface)."""
+    out = tmp_path / "out.csv"
+    fogd = start_fogd(tmp_path, gyro.path, model_path, "--out", str(out), "--out-format", "csv")
+    try:
+        gyro.write(b"".join(wire_frames("kvh-a", run_samples("kvh-a"))))
+        wait_for_rows(out, SAMPLES + 1)
+        maps = Path(f"/proc/{fogd.process.pid}/maps").read_text()
+        assert fogd.terminate()[0] == 0
+    finally:
+        fogd.kill()
+    assert "/numpy/" in maps  # the check can see a package's files
+    assert "/sklearn/" not in maps and "/scipy/" not in maps
+
+
 def test_corrupted_frames_are_counted_and_no_valid_frame_is_lost(tmp_path, gyro, model_path):
     samples = run_samples("kvh-a", seed=5)
     frames = wire_frames("kvh-a", samples)
