@@ -3,7 +3,11 @@
 Feed it gyro rates and the temperature held for each rate sample, in chunks of any size (one frame in the
 daemon, a million rows in replay): it estimates the temperature rate (eq. 16), evaluates the frozen model
 and returns the compensation, the compensated rate and per-sample flags. The result does not depend on how
-the samples were chunked.
+the samples were chunked: chunks of up to `SCALAR_CHUNK` samples (the daemon's batches at real rates are one
+frame) go sample by sample through the estimators' `update_one` and `FrozenModel.predict_one` in Python
+floats, because numpy's per-call overhead would cost ten times the work; their temperatures, rates and flags
+are the same bit for bit, and so is their compensation for the linear model (within 1e-12 relative for the
+kernel models, whose `predict_one` sums in another order).
 
 Policies (documented in the README):
 - Warm-up: until the estimator window is full the temperature rate is taken as 0 C/s; the model is still
@@ -22,16 +26,20 @@ Policies (documented in the README):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from fogd.domain import DomainGuard
+from fogd.estimator import SCALAR_CHUNK
 from fogd.flags import Flag
 from fogd.frozen import FrozenModel
 from fogd.inputs import InputBank
 
 TEMP_VALID_C = (-100.0, 200.0)  # a reading outside this is a broken sensor or a corrupt frame
+_TEMP_INVALID, _WARMUP, _CLAMPED = int(Flag.TEMP_INVALID), int(Flag.WARMUP), int(Flag.CLAMPED)
+_OUT_OF_DOMAIN, _RATE_INVALID, _TEMP_STALE = int(Flag.OUT_OF_DOMAIN), int(Flag.RATE_INVALID), int(Flag.TEMP_STALE)
 
 
 @dataclass
@@ -89,6 +97,8 @@ class Compensator:
         rate_dph = np.atleast_1d(np.asarray(rate_dph, dtype=np.float64))
         temp_in = np.atleast_1d(np.asarray(temp_c, dtype=np.float64))
         n = rate_dph.size
+        if n <= SCALAR_CHUNK:
+            return self._process_few(rate_dph, temp_in, rate_valid, temp_stale)
         flags = np.zeros(n, dtype=np.uint16)
 
         temp_ok = temperature_valid(temp_in)
@@ -124,6 +134,54 @@ class Compensator:
             flags[np.asarray(temp_stale, dtype=bool)] |= int(Flag.TEMP_STALE)
         rate_comp_dph = np.where(rate_ok, rate_dph - comp_dph, rate_dph)
         return Compensated(temp_used, temp_rate_cps, comp_dph, rate_comp_dph, flags)
+
+    def _process_few(
+        self, rate_dph: np.ndarray, temp_c: np.ndarray, rate_valid: np.ndarray | None, temp_stale: np.ndarray | None
+    ) -> Compensated:
+        """`process` one sample at a time in Python floats: the same policies, in the same order."""
+        n = rate_dph.size
+        valid = [True] * n if rate_valid is None else np.asarray(rate_valid, dtype=bool).tolist()
+        stale = [False] * n if temp_stale is None else np.asarray(temp_stale, dtype=bool).tolist()
+        low_c, high_c = TEMP_VALID_C
+        bank, model, guard, rate_column = self.bank, self.model, self.guard, self._rate_column
+        temps, temp_rates, comps, rates_out, flags_out = [], [], [], [], []
+        for rate, temp, rate_ok, is_stale in zip(rate_dph.tolist(), temp_c.tolist(), valid, stale):
+            flags = 0
+            if low_c <= temp <= high_c:  # (NaN is not)
+                self._held_temp_c = temp
+            else:
+                flags |= _TEMP_INVALID
+            held = self._held_temp_c
+            temp_rate = comp = 0.0
+            if held == held:  # a valid temperature has been seen
+                if bank.count < bank.warmup:
+                    flags |= _WARMUP
+                x = bank.update_one(held)
+                comp, clamped = model.predict_one(x)
+                if guard is not None and not flags & _WARMUP and guard.outside(np.array(x))[0]:
+                    comp = guard.fallback.predict_one(x)[0]
+                    flags |= _OUT_OF_DOMAIN
+                if clamped:
+                    flags |= _CLAMPED
+                if rate_column is not None:
+                    temp_rate = x[rate_column]
+            else:
+                flags |= _WARMUP
+            rate_ok = rate_ok and math.isfinite(rate)
+            if not rate_ok:
+                flags |= _RATE_INVALID
+            if is_stale:
+                flags |= _TEMP_STALE
+            temps.append(held)
+            temp_rates.append(temp_rate)
+            comps.append(comp)
+            rates_out.append(rate - comp if rate_ok else rate)
+            flags_out.append(flags)
+        return Compensated(
+            np.array(temps, dtype=np.float64), np.array(temp_rates, dtype=np.float64),
+            np.array(comps, dtype=np.float64), np.array(rates_out, dtype=np.float64),
+            np.array(flags_out, dtype=np.uint16),
+        )  # fmt: skip
 
     def _hold(self, temp_c: np.ndarray, valid: np.ndarray) -> np.ndarray:
         held = hold_temperature(temp_c, valid, self._held_temp_c)

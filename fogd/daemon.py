@@ -29,6 +29,7 @@ import numpy as np
 
 from fogd.compensator import Compensator
 from fogd.errors import FogdError
+from fogd.estimator import SCALAR_CHUNK
 from fogd.flags import describe
 from fogd.frozen import FrozenModel
 from fogd.outputs import Formatter, OutputBatch, Writer, rate_row_indices
@@ -61,6 +62,14 @@ class TemperatureHold:
     def hold(self, records: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(temperature held for each record, seconds since it arrived)."""
         has_temp = records["has_temp"]
+        if len(records) <= SCALAR_CHUNK:  # the usual batch of a frame or two: Python floats, no numpy overhead
+            temps_c, ages_s = [], []
+            for has, temp_c, rx_s in zip(has_temp.tolist(), records["temp_c"].tolist(), records["t_rx_s"].tolist()):
+                if has:
+                    self.temp_c, self.rx_s = temp_c, rx_s
+                temps_c.append(self.temp_c)
+                ages_s.append(rx_s - self.rx_s)
+            return np.array(temps_c, dtype=np.float64), np.array(ages_s, dtype=np.float64)
         source = np.where(has_temp, np.arange(has_temp.size), -1)
         np.maximum.accumulate(source, out=source)
         known = source >= 0
@@ -81,6 +90,11 @@ class SampleClock:
         self.count = 0
 
     def times(self, device_s: np.ndarray) -> np.ndarray:
+        if device_s.size <= SCALAR_CHUNK:
+            first, rate_hz = self.count, self.rate_hz
+            self.count += device_s.size
+            return np.array([(first + i) / rate_hz if t_s != t_s else t_s for i, t_s in enumerate(device_s.tolist())],
+                            dtype=np.float64)  # fmt: skip
         count_s = (self.count + np.arange(device_s.size)) / self.rate_hz
         self.count += device_s.size
         return np.where(np.isnan(device_s), count_s, device_s)

@@ -169,3 +169,8 @@ class InputBank:
             out[:, column] = temp_c if estimator is None else estimator.update(temp_c)
         self.count += temp_c.size
         return out
+
+    def update_one(self, temp_c: float) -> tuple[float, ...]:
+        """Feed one finite temperature; its input row as Python floats, the same floats `update` gives."""
+        self.count += 1
+        return tuple(temp_c if estimator is None else estimator.update_one(temp_c) for estimator in self._estimators)

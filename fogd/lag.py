@@ -8,9 +8,12 @@ the best guess it has. T - lag(T) is then a proxy for the radial gradient IEEE 9
 
 Both forms, streaming (`LagFilter.update`, any chunk size, O(1) per sample whatever tau) and batch
 (`lag_batch`), run the very same recurrence: scipy's `lfilter` with the state carried from chunk to chunk in
-`zi`. The recurrence is computed sample by sample in the same order whatever the chunking, so both forms give
-the same floats bit for bit (tests/test_lag.py proves it for arbitrary chunkings). scipy is imported on the
-first update, not with this module: a daemon whose model has no lag input never maps it (about 70 MB of RSS).
+`zi`, and for the daemon's chunks of a few samples (`update_one`) lfilter's own two operations in Python
+floats (y = z + b0 x, z = (1 - a) y), which give the same floats without its per-call overhead. The
+recurrence is computed sample by sample in the same order whatever the chunking, so both forms give the same
+floats bit for bit (tests/test_lag.py proves it for arbitrary chunkings). scipy is imported when a filter is
+made (a model with a lag input is loaded), not with this module: a daemon whose model has no lag input never
+maps it (about 70 MB of RSS).
 """
 
 from __future__ import annotations
@@ -18,6 +21,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
+from fogd.estimator import SCALAR_CHUNK
 
 MAX_TAU_S = 86400.0
 
@@ -34,23 +39,34 @@ class LagFilter:
     """The lag, streaming: feed finite temperatures in chunks of any size."""
 
     def __init__(self, tau_s: float, rate_hz: float) -> None:
+        from scipy.signal import lfilter  # at model load, never mid-stream: the import takes most of a second
+
+        self._lfilter = lfilter
         self.tau_s = float(tau_s)
         self.rate_hz = float(rate_hz)
         self._b, self._a = coefficients(tau_s, rate_hz)
-        self._state: np.ndarray | None = None  # lfilter's zi: (1 - a) * y[n-1]
+        self._gain, self._keep = self._b.item(0), -self._a.item(1)
+        self._state: float | None = None  # lfilter's zi: (1 - a) * y[n-1]
 
     def reset(self) -> None:
         self._state = None
 
     def update(self, temp_c: np.ndarray) -> np.ndarray:
         temp_c = np.atleast_1d(np.asarray(temp_c, dtype=np.float64))
-        if temp_c.size == 0:
-            return np.empty(0)
+        if temp_c.size <= SCALAR_CHUNK:
+            return np.array([self.update_one(value) for value in temp_c.tolist()], dtype=np.float64)
         if self._state is None:
-            self._state = -self._a[1:] * temp_c[0]  # steady state at the first input
-        from scipy.signal import lfilter
-        out, self._state = lfilter(self._b, self._a, temp_c, zi=self._state)
+            self._state = self._keep * temp_c.item(0)  # steady state at the first input
+        out, state = self._lfilter(self._b, self._a, temp_c, zi=np.array([self._state]))
+        self._state = state.item(0)
         return out
+
+    def update_one(self, temp_c: float) -> float:
+        """Feed one sample; its lagged value, the same float `update` gives."""
+        state = self._keep * temp_c if self._state is None else self._state
+        lagged = state + self._gain * temp_c
+        self._state = self._keep * lagged
+        return lagged
 
 
 def lag_batch(temp_c: np.ndarray, tau_s: float, rate_hz: float) -> np.ndarray:

@@ -159,7 +159,8 @@ class Ring:
         start = self._head % self.capacity
         first = min(count, self.capacity - start)
         self._slots[start : start + first] = batch[:first]
-        self._slots[: count - first] = batch[first:count]
+        if count > first:  # wrapped
+            self._slots[: count - first] = batch[first:count]
         self._head += count  # publish only after the slots are written
         return count
 
@@ -170,6 +171,12 @@ class Ring:
             count = min(count, max_count)
         start = self._tail % self.capacity
         first = min(count, self.capacity - start)
-        out = np.concatenate((self._slots[start : start + first], self._slots[: count - first]))
+        # a copy by slicing, not np.concatenate: promoting a structured dtype costs more than the copy itself
+        if count == first:
+            out = self._slots[start : start + count].copy()
+        else:  # wrapped
+            out = np.empty(count, dtype=self._slots.dtype)
+            out[:first] = self._slots[start:]
+            out[first:] = self._slots[: count - first]
         self._tail += count
         return out

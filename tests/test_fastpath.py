@@ -1,6 +1,7 @@
 """The fast paths give the very results of the paths they stand in for: the scalar estimator update (bit for
-bit), the per-point model evaluation (to 1e-12), the distinct-row reuse and the column-wise kernel sums in
-batch evaluation (bit for bit), and the CSV reader (bit for bit against numpy's)."""
+bit), the per-point model evaluation (to 1e-12), the compensator's one-sample chunks (flags and inputs bit for
+bit, compensation to 1e-12), the distinct-row reuse and the column-wise kernel sums in batch evaluation (bit
+for bit), and the CSV reader (bit for bit against numpy's)."""
 
 from __future__ import annotations
 
@@ -10,9 +11,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fogd import frozen
+from fogd.compensator import Compensator
 from fogd.estimator import EstimatorSettings, TempRateEstimator, temp_rate_batch
+from fogd.flags import Flag
 from fogd.frozen import FrozenModel, Linear, Polynomial, RbfNetwork, Svr, unique_rows
-from fogd.inputs import default_inputs
+from fogd.inputs import default_inputs, parse_inputs
 from fogd.runio import read_run
 
 
@@ -175,3 +178,46 @@ def test_read_run_equals_numpy_loadtxt(tmp_path, bom):
     want = np.loadtxt(path, delimiter=",", skiprows=1, encoding="utf-8-sig")
     assert np.column_stack((run.t_s, run.rate_dph, run.temp_c)).tobytes() == want.tobytes()
     assert len(run.sha256) == 64
+
+
+def compensated_in_chunks(frozen_model: FrozenModel, rate: np.ndarray, temp: np.ndarray, size: int) -> dict:
+    compensator = Compensator(frozen_model, 10.0)
+    parts = [compensator.process(rate[i : i + size], temp[i : i + size]) for i in range(0, rate.size, size)]
+    return {name: np.concatenate([getattr(p, name) for p in parts]) for name in ("temp_c", "temp_rate_cps", "comp_dph", "rate_comp_dph", "flags")}
+
+
+@pytest.mark.parametrize("name", ["linear", "ls-poly", "rbf-nn", "svr-small", "svr-large", "svr-none"])
+def test_the_daemons_one_sample_chunks_equal_replays_big_chunks(name):
+    """Chunks of one sample take the scalar path (update_one, predict_one), a whole run the array path: the
+    same temperatures, rates and flags bit for bit, the compensation within 1e-12 (exact for linear)."""
+    rng = np.random.default_rng(8)
+    frozen_model = model(evaluators(rng)[name])
+    temp = 20 + np.round(np.cumsum(rng.normal(0, 0.02, 1500)) / 0.0625) * 0.0625  # leaves the domain too
+    rate = rng.normal(0, 1, 1500)
+    temp[[3, 700, 701]] = [np.nan, np.inf, 500.0]
+    rate[[5, 900]] = [np.nan, np.inf]
+    whole = compensated_in_chunks(frozen_model, rate, temp, rate.size)
+    one = compensated_in_chunks(frozen_model, rate, temp, 1)
+    assert ((whole["flags"] & Flag.CLAMPED) != 0).any() and ((whole["flags"] & Flag.WARMUP) == 0).any()
+    for column in ("temp_c", "temp_rate_cps", "flags"):
+        assert one[column].tobytes() == whole[column].tobytes(), column
+    if name == "linear":
+        assert one["comp_dph"].tobytes() == whole["comp_dph"].tobytes()
+    np.testing.assert_allclose(one["comp_dph"], whole["comp_dph"], rtol=1e-12, atol=1e-12 * np.abs(whole["comp_dph"]).max())
+    np.testing.assert_allclose(one["rate_comp_dph"], whole["rate_comp_dph"], rtol=1e-12, atol=1e-12 * np.abs(whole["comp_dph"]).max())
+
+
+def test_lagged_and_multi_window_inputs_one_sample_at_a_time_equal_the_array_path():
+    specs = parse_inputs("temp,rate@5,rate@30,lag@60")
+    frozen_model = FrozenModel(
+        method="linear", inputs=specs, x_mean=np.zeros(4), x_scale=np.ones(4), y_mean=0.0, y_scale=1.0,
+        domain_min=np.full(4, -1e3), domain_max=np.full(4, 1e3), evaluator=Linear(np.array([0.01, 20.0, -7.0, 0.03]), 0.2),
+    )  # fmt: skip
+    rng = np.random.default_rng(9)
+    temp = 20 + np.round(np.cumsum(rng.normal(0, 0.02, 2000)) / 0.0625) * 0.0625
+    rate = rng.normal(0, 1, 2000)
+    whole = compensated_in_chunks(frozen_model, rate, temp, rate.size)
+    for size in (1, 7, 16, 17):
+        chunked = compensated_in_chunks(frozen_model, rate, temp, size)
+        for column, values in chunked.items():
+            assert values.tobytes() == whole[column].tobytes(), (size, column)
