@@ -5,11 +5,15 @@ that drains a bounded queue into the sink with a write timeout.
 The compensation loop hands the writer one encoded chunk per batch and never waits: when the queue is full
 the chunk's frames are dropped and counted, and a consumer that does not take bytes within the write timeout
 costs the frames not yet written, counted too. Memory is bounded by the queue length, whatever the consumer
-does.
+does. When the writer thread is idle (nothing queued or being written) and the sink is non-blocking, the
+loop writes the chunk itself with one non-blocking write, and queues only what the consumer did not take at
+once: output order is kept, nothing waits, and a frame reaches the consumer without a wake-up of the writer
+thread (most of the daemon's latency at real rates).
 """
 
 from __future__ import annotations
 
+import bisect
 import logging
 import math
 import os
@@ -299,6 +303,10 @@ class Writer:
         self._thread = threading.Thread(target=self._run, name="fogd-writer", daemon=True)
         self._error_logged = False
         self.error: BaseException | None = None  # what killed the thread, if anything did
+        # chunks queued (counted by `submit`'s thread) and written (by the writer thread): each counter has one
+        # writer, so no lock; equal means the writer thread is idle in `get` with nothing queued.
+        self._queued = 0
+        self._done = 0
 
     def start(self, header: bytes = b"") -> None:
         if header:
@@ -313,10 +321,29 @@ class Writer:
         """Queue a chunk without waiting; a full queue drops it (counted)."""
         if not chunk.frame_ends:
             return
+        if not self.sink.blocking and self._queued == self._done and self._thread.is_alive():
+            rest = self._write_now(chunk)
+            if rest is None:
+                return
+            chunk = rest
         try:
             self._queue.put_nowait(chunk)
+            self._queued += 1
         except queue.Full:
             self.counters.frames_dropped_full += len(chunk.frame_ends)
+
+    def _write_now(self, chunk: Chunk) -> Chunk | None:
+        """One non-blocking write on the caller's thread while the writer thread is idle (so the counters have
+        one writer at a time); what the consumer did not take, for the queue, or None."""
+        try:
+            written = os.write(self.sink.fd, chunk.data)
+        except OSError:  # would block, or an error the writer thread logs and counts by its own policy
+            return chunk
+        complete = bisect.bisect_right(chunk.frame_ends, written)
+        self.counters.frames_written += complete
+        if written == len(chunk.data):
+            return None
+        return Chunk(chunk.data[written:], [end - written for end in chunk.frame_ends[complete:]])
 
     def close(self, timeout_s: float) -> bool:
         """Write what is queued (within `timeout_s`), stop the thread and close the sink; False if it timed out."""
@@ -340,6 +367,7 @@ class Writer:
                 if chunk is None:
                     return
                 self._write(chunk)
+                self._done += 1
         except BaseException as error:  # the daemon notices a dead writer through `alive` and `error`
             self.error = error
             raise

@@ -5,6 +5,7 @@ import io
 import json
 import os
 import struct
+import threading
 import time
 
 import numpy as np
@@ -182,3 +183,36 @@ def test_stuck_consumer_is_counted_and_never_blocks_the_caller(tmp_path):
     assert counters.frames_dropped_full > 0 and counters.frames_dropped_timeout > 0
     total = counters.frames_written + counters.frames_dropped_full + counters.frames_dropped_timeout
     assert total == 200 * 1000
+
+
+def test_direct_and_queued_writes_keep_the_order_and_count_every_frame(tmp_path):
+    """An idle writer lets `submit` write at once; what the consumer does not take goes through the queue.
+    A slow reader sees every byte in order and every frame is counted written."""
+    link = tmp_path / "slow"
+    sink = open_sink(f"pty:{link}", 921600)
+    reader_fd = os.open(link, os.O_RDONLY | os.O_NOCTTY)
+    received = bytearray()
+    chunks = [bytes([i % 251]) * (36 * (1 + i % 50)) for i in range(400)]
+    expected = b"".join(chunks)
+
+    def read_slowly():
+        time.sleep(0.3)  # the pty fills: writes are partial and the rest is queued
+        while len(received) < len(expected):
+            received.extend(os.read(reader_fd, 4096))
+            time.sleep(0.0005)
+
+    thread = threading.Thread(target=read_slowly)
+    thread.start()
+    writer = Writer(sink, queue_chunks=10_000, write_timeout_s=5.0)
+    writer.start()
+    for chunk in chunks:
+        writer.submit(Chunk(chunk, list(range(36, len(chunk) + 1, 36))))
+        time.sleep(0.0002)
+    queued = writer._queued
+    thread.join(20.0)  # (closing the writer closes the pty, and a pty drops what its reader has not read)
+    assert writer.close(1.0)
+    os.close(reader_fd)
+    assert bytes(received) == expected
+    assert writer.counters.frames_written == len(expected) // 36
+    assert writer.counters.frames_dropped_full == writer.counters.frames_dropped_timeout == 0
+    assert 0 < queued < len(chunks)  # both paths were taken
