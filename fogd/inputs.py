@@ -112,6 +112,11 @@ def default_inputs(estimator: EstimatorSettings | None = None) -> tuple[InputSpe
     return (InputSpec(TEMP), InputSpec(TEMP_RATE, estimator or EstimatorSettings()))
 
 
+def temperature_columns(specs: tuple[InputSpec, ...]) -> tuple[int, ...]:
+    """The inputs that are temperatures (the sensor's, or lagged), as opposed to temperature rates."""
+    return tuple(i for i, spec in enumerate(specs) if spec.kind in (TEMP, TEMP_LAG))
+
+
 def warmup_samples(specs: tuple[InputSpec, ...], rate_hz: float) -> int:
     """Samples before every input is real (the longest estimator window; a lag starts in steady state at the
     first temperature and has no warm-up)."""

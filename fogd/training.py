@@ -6,6 +6,7 @@ the estimator settings written into the model file so that serving cannot disagr
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as dt
 from dataclasses import dataclass, field
 from typing import Any
@@ -15,7 +16,7 @@ import numpy as np
 from fogd import domain, modelfile
 from fogd.features import TrainingSet, block_samples, training_set
 from fogd.frozen import FrozenModel
-from fogd.inputs import InputSpec, default_inputs
+from fogd.inputs import InputSpec, default_inputs, temperature_columns
 from fogd.metrics import ErrorStats
 from fogd.models import FitOptions, Fitted, fit
 from fogd.runio import Run
@@ -66,7 +67,8 @@ def train(runs: list[Run], config: TrainConfig, prepared: tuple[TrainingSet, flo
     """Fit `config.method` to the runs and return the validated model."""
     data, reference = prepared or prepare(runs, config)
     error = data.rate_dph - reference
-    fitted = fit(config.method, data.x, error, data.groups, config.fit)
+    options = dataclasses.replace(config.fit, temperature_columns=temperature_columns(config.inputs))
+    fitted = fit(config.method, data.x, error, data.groups, options)
     created = dt.datetime.now(dt.timezone.utc).replace(microsecond=0).isoformat()
     metrics = {
         "train_before": ErrorStats.of(error).to_dict(),

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from fogd.errors import InputError
+from fogd.errors import InputError, UsageError
 from fogd.frozen import build_evaluator
 from fogd.models import METHODS, FitOptions, Fitted, fit, folds
 
@@ -44,11 +44,31 @@ def test_ls_poly_recovers_a_known_polynomial() -> None:
     x = np.c_[rng.uniform(-15.0, 50.0, 60), rng.uniform(-0.02, 0.02, 60)]
     truth = lambda x: 0.3 + 0.01 * x[:, 0] - 4e-4 * x[:, 0] ** 2 + 2e-6 * x[:, 0] ** 3 + 3.0 * x[:, 1] - 0.5 * x[:, 0] * x[:, 1]  # noqa: E731
     fitted = fit("ls-poly", x, truth(x), np.zeros(60, int), FitOptions(degree=3, progress=False))
-    assert fitted.hyperparameters == {"degree": 3}
+    assert fitted.hyperparameters == {"degree": 3, "terms": "full"}
     assert len(fitted.params["powers"]) == 9 and all(1 <= sum(p) <= 3 for p in fitted.params["powers"])
     fresh = np.c_[rng.uniform(-15.0, 50.0, 200), rng.uniform(-0.02, 0.02, 200)]
     np.testing.assert_allclose(predict_dph(fitted, fresh), truth(fresh), rtol=0, atol=1e-10)
     assert fitted.cv_rmse_dph < 1e-10  # exact model: nothing left out of sample either
+
+
+def test_temperature_terms_recover_a_polynomial_static_term_plus_linear_rates() -> None:
+    """--poly-terms temp: T, T^2, T^3 of each temperature input (here temp and a lag) and the rate linear; no
+    cross terms, so a model with one fits exactly only with 'full' terms."""
+    rng = np.random.default_rng(5)
+    x = np.c_[rng.uniform(-15.0, 50.0, 80), rng.uniform(-0.02, 0.02, 80), rng.uniform(-15.0, 50.0, 80)]
+    truth = lambda x: 0.3 + 0.01 * x[:, 0] - 4e-4 * x[:, 0] ** 2 + 2e-6 * x[:, 0] ** 3 + 3.0 * x[:, 1] + 1e-3 * x[:, 2] ** 2  # noqa: E731
+    options = FitOptions(degree=3, poly_terms="temp", temperature_columns=(0, 2), progress=False)
+    fitted = fit("ls-poly", x, truth(x), np.zeros(80, int), options)
+    assert fitted.hyperparameters == {"degree": 3, "terms": "temp"}
+    assert fitted.params["powers"] == [[1, 0, 0], [2, 0, 0], [3, 0, 0], [0, 1, 0], [0, 0, 1], [0, 0, 2], [0, 0, 3]]
+    fresh = np.c_[rng.uniform(-15.0, 50.0, 200), rng.uniform(-0.02, 0.02, 200), rng.uniform(-15.0, 50.0, 200)]
+    np.testing.assert_allclose(predict_dph(fitted, fresh), truth(fresh), rtol=0, atol=1e-10)
+    xs = rng.uniform(-4.0, 4.0, (300, 3))
+    np.testing.assert_allclose(build_evaluator("ls-poly", fitted.params)(xs), fitted.estimator.predict(xs), rtol=0, atol=1e-9)
+    crossed = lambda x: truth(x) + 0.05 * x[:, 0] * x[:, 1]  # noqa: E731
+    assert fit("ls-poly", x, crossed(x), np.zeros(80, int), options).cv_rmse_dph > 1e-4
+    with pytest.raises(UsageError, match="polynomial terms"):
+        fit("ls-poly", x, truth(x), np.zeros(80, int), FitOptions(poly_terms="some", progress=False))
 
 
 def test_linear_recovers_known_coefficients() -> None:

@@ -7,8 +7,8 @@ import pytest
 
 from fogd.models import FitOptions
 from fogd.runio import Run
-from fogd.selection import MARGIN, Candidate, choose, input_sets, select, table_lines
-from fogd.training import TrainConfig
+from fogd.selection import MARGIN, Candidate, choose, input_sets, nested_rmse, select, table_lines
+from fogd.training import TrainConfig, prepare
 
 
 def synthetic_run(name: str, seed: int, up: bool) -> Run:
@@ -30,10 +30,9 @@ def test_auto_scores_every_candidate_on_the_same_blocks_and_picks_the_best():
     targets = {c.trained.error_dph.tobytes() for c in candidates}
     assert len(targets) == 1  # one set of blocks and targets for every candidate
     assert chosen is choose(candidates) and chosen.held_out_rmse_dph <= candidates[0].held_out_rmse_dph
-    # the polynomial's order is chosen by held-out error, and order 1 is linear: never worse than linear
+    # the polynomial's terms and order are chosen by held-out error
     poly = candidates[1]
-    assert 1 <= poly.hyperparameters["degree"] <= 5
-    assert poly.held_out_rmse_dph <= candidates[0].held_out_rmse_dph * (1 + 1e-9)
+    assert 1 <= poly.hyperparameters["degree"] <= 5 and poly.hyperparameters["terms"] in ("full", "temp")
     lines = table_lines(candidates, chosen)
     assert len(lines) == 1 + len(candidates) and any("<- chosen" in line for line in lines)
 
@@ -56,3 +55,27 @@ def test_each_step_up_in_complexity_must_win_by_the_margin():
 def test_bad_auto_inputs_are_refused():
     with pytest.raises(ValueError, match="--inputs item"):
         input_sets(["temp,rate"], 0.5, 0.0)
+
+
+def test_nested_score_predicts_each_run_from_the_others_with_clamped_inputs():
+    """For linear (nothing to tune) the nested score is leave-one-run-out least squares, computed here with
+    numpy's lstsq, the held-out inputs clamped to the training rows' range as the daemon clamps them."""
+    runs = [synthetic_run("up.csv", 1, True), synthetic_run("down.csv", 2, False), synthetic_run("up2.csv", 3, True)]
+    runs[2].temp_c[:] = runs[2].temp_c + 5.0  # partly outside the other runs' range: clamping matters
+    config = TrainConfig(block_s=100.0, fit=FitOptions(progress=False), domain_guard=False)
+    data, reference = prepare(runs, config)
+    error = data.rate_dph - reference
+    residual = np.empty_like(error)
+    for run in range(3):
+        train, test = data.groups != run, data.groups == run
+        design = np.c_[np.ones(train.sum()), data.x[train]]
+        coef = np.linalg.lstsq(design, error[train], rcond=None)[0]
+        x_test = np.clip(data.x[test], data.x[train].min(axis=0), data.x[train].max(axis=0))
+        residual[test] = np.c_[np.ones(test.sum()), x_test] @ coef - error[test]
+    expected = np.sqrt(np.mean(residual**2))
+    assert nested_rmse("linear", data, error, config.fit) == pytest.approx(expected, rel=1e-9)
+    unclamped = np.sqrt(np.mean(np.concatenate([
+        np.c_[np.ones((data.groups == run).sum()), data.x[data.groups == run]]
+        @ np.linalg.lstsq(np.c_[np.ones((data.groups != run).sum()), data.x[data.groups != run]], error[data.groups != run], rcond=None)[0]
+        - error[data.groups == run] for run in range(3)]) ** 2))  # fmt: skip
+    assert abs(unclamped - expected) > 1e-6 * expected  # the clamp changed something

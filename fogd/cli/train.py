@@ -12,6 +12,7 @@ from fogd.errors import UsageError
 from fogd.estimator import EstimatorSettings
 from fogd.inputs import INPUTS_SYNTAX, default_inputs, parse_inputs
 from fogd.models import FITNESSES, METHODS, FitOptions
+from fogd.models.least_squares import POLY_TERMS
 from fogd.replay import replay, replay_table
 from fogd.runio import read_run
 from fogd.selection import AUTO_ITERATIONS, AUTO_PARTICLES, DEFAULT_INPUT_SETS, input_sets, select, stderr_log, table_lines
@@ -69,6 +70,12 @@ def parser() -> ArgumentParser:
     p.add_argument("--jobs", type=int, default=1, help="joblib workers evaluating particles (-1: all cores)")
     p.add_argument("--seed", type=int, default=0, help="random seed (PSO, k-means)")
     p.add_argument("--degree", type=positive_int, default=5, help="ls-poly order (paper: 5)")
+    p.add_argument(
+        "--poly-terms", choices=POLY_TERMS, default="full",
+        help="ls-poly terms: 'full' every monomial up to --degree (the paper's); 'temp' powers of each temperature "
+             "input (temp, lag@) up to --degree and the rate inputs linear, no cross terms (IEEE 952's model with "
+             "a polynomial static term)",
+    )  # fmt: skip
     p.add_argument("--window-s", type=positive_float, default=50.0, help="eq. 16 window N, in seconds")
     p.add_argument("--average-s", type=positive_float, default=0.5, help="eq. 16 averaging window m, in seconds")
     p.add_argument("--step-s", type=non_negative_float, default=0.0, help="eq. 16 step l, in seconds (0: every sample)")
@@ -125,7 +132,7 @@ def body(argv: Sequence[str] | None) -> int:
         block_s=args.block_s,
         reference=_reference(args.reference),
         fit=FitOptions(
-            degree=args.degree, particles=particles, iterations=iterations, c1=args.c1, c2=args.c2,
+            degree=args.degree, poly_terms=args.poly_terms, particles=particles, iterations=iterations, c1=args.c1, c2=args.c2,
             fitness=args.fitness, trend=args.trend == "linear", folds=args.folds, n_jobs=args.jobs, seed=args.seed, progress=not args.quiet,
         ),  # fmt: skip
         name=args.name,

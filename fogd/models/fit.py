@@ -13,7 +13,7 @@ import numpy as np
 
 from fogd.errors import InputError, UsageError
 from fogd.models.folds import folds, held_out_rmse
-from fogd.models.least_squares import fit_linear, fit_polynomial, polynomial_terms
+from fogd.models.least_squares import POLY_TERMS, fit_linear, fit_polynomial, polynomial_terms
 from fogd.models.rbf import ROWS_PER_CENTRE, fit_rbf_network
 from fogd.models.svr import fit_pso_svr
 
@@ -28,6 +28,8 @@ class FitOptions:
     """How to fit; the PSO defaults are the paper's table 1."""
 
     degree: int = 5  # ls-poly order (paper section 4.1)
+    poly_terms: str = "full"  # ls-poly: "full" (the paper's) or "temp" (fogd.models.least_squares)
+    temperature_columns: tuple[int, ...] = (0,)  # the inputs that are temperatures (for poly_terms "temp")
     particles: int = 60
     iterations: int = 100
     c1: float = 2.0
@@ -70,7 +72,9 @@ def fit(method: str, X: np.ndarray, y: np.ndarray, groups: np.ndarray, options: 
     if not (np.all(np.isfinite(X)) and np.all(np.isfinite(y))):
         raise InputError("the block rows contain NaN or infinite values: check the runs for gaps or bad samples")
     splits = folds(groups, options.folds)
-    _check_rows(method, min(len(train) for train, _ in splits), X.shape[1], options.degree)
+    if options.poly_terms not in POLY_TERMS:
+        raise UsageError(f"unknown polynomial terms {options.poly_terms!r}: choose one of {', '.join(POLY_TERMS)}")
+    _check_rows(method, min(len(train) for train, _ in splits), X.shape[1], options)
 
     x_mean, x_std = X.mean(axis=0), X.std(axis=0)
     x_scale = np.where(x_std > 0, x_std, 1.0)
@@ -79,7 +83,7 @@ def fit(method: str, X: np.ndarray, y: np.ndarray, groups: np.ndarray, options: 
     if method == "linear":
         result = fit_linear(xs, ys)
     elif method == "ls-poly":
-        result = fit_polynomial(xs, ys, options.degree)
+        result = fit_polynomial(xs, ys, options.degree, options.poly_terms, options.temperature_columns)
     elif method == "rbf-nn":
         result = fit_rbf_network(xs, ys, splits, options.seed)
     else:
@@ -102,13 +106,13 @@ def fit(method: str, X: np.ndarray, y: np.ndarray, groups: np.ndarray, options: 
     )
 
 
-def _check_rows(method: str, train_rows: int, inputs: int, degree: int) -> None:
+def _check_rows(method: str, train_rows: int, inputs: int, options: FitOptions) -> None:
     """Every training fold must hold enough rows for the method (the full fit has more)."""
-    if method == "ls-poly" and degree < 1:
-        raise UsageError(f"--degree must be at least 1 (got {degree})")
+    if method == "ls-poly" and options.degree < 1:
+        raise UsageError(f"--degree must be at least 1 (got {options.degree})")
     needed = {
         "linear": inputs + 1,
-        "ls-poly": polynomial_terms(inputs, degree) + 1,
+        "ls-poly": polynomial_terms(inputs, options.degree, options.poly_terms, options.temperature_columns) + 1,
         "rbf-nn": ROWS_PER_CENTRE * _RBF_MIN_CENTRES,
         "pso-svr": _SVR_MIN_ROWS,
     }[method]
