@@ -9,7 +9,6 @@ the file is flushed every second, and SIGINT/SIGTERM stop cleanly.
 
 from __future__ import annotations
 
-import argparse
 import logging
 import signal
 import sys
@@ -20,7 +19,7 @@ from typing import IO, Sequence
 import numpy as np
 
 from fogd import protocols
-from fogd.cli.common import ArgumentParser, positive_float, positive_int, run
+from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, positive_float, positive_int, run
 from fogd.daemon import RING_CAPACITY, SampleClock, TemperatureHold
 from fogd.errors import DeviceError, describe_os_error
 from fogd.estimator import EstimatorSettings, TempRateEstimator
@@ -46,7 +45,7 @@ def parser() -> ArgumentParser:
         description="Record a FOG run from a serial port as CSV t_s,rate_dph,temp_c (the input of fogd-train). "
         "Bad frames are counted and dropped; an unplugged port is reopened and recording continues. "
         "Stop with Ctrl-C or SIGTERM.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=DefaultsHelpFormatter,
     )
     p.add_argument("--port", required=True, metavar="PATH", help="serial port the FOG is on")
     p.add_argument("--protocol", default="kvh-a", choices=protocols.names(), help="wire protocol of the port")

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import argparse
 import sys
 from typing import Sequence
 
 from fogd import modelfile
-from fogd.cli.common import ArgumentParser, positive_float, run
+from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, positive_float, run
 from fogd.flags import Flag
 from fogd.allan import plot, summary_lines
 from fogd.replay import allan_curves, replay, replay_table
@@ -33,7 +32,7 @@ def parser() -> ArgumentParser:
         "daemon would, and write t_s,rate_dph,temp_c,temp_rate_cps,comp_dph,rate_comp_dph,flags: one row per "
         "input row, in order. Prints the paper's table 4 (block-mean error before and after).",
         epilog=f"flags bits: {', '.join(f'{flag.name}={int(flag)}' for flag in Flag)}",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=DefaultsHelpFormatter,
     )
     p.add_argument("model", metavar="MODEL.json", help="model file written by fogd-train")
     p.add_argument("run", metavar="RUN.csv", help="recorded run to compensate")

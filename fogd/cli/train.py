@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import argparse
 import sys
 from typing import Sequence
 
 from fogd import modelfile
-from fogd.cli.common import ArgumentParser, non_negative_float, positive_float, positive_int, run
+from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, non_negative_float, positive_float, positive_int, run
 from fogd.errors import UsageError
 from fogd.estimator import EstimatorSettings
 from fogd.inputs import INPUTS_SYNTAX, default_inputs, parse_inputs
@@ -28,14 +27,15 @@ def parser() -> ArgumentParser:
         description="Fit a FOG temperature-error model f(T, dT/dt) from thermal-chamber runs "
         "(CSV t_s,rate_dph,temp_c) and write it as a JSON model file for fogd and fogd-replay.",
         epilog="Example: fogd-train cal_heat.csv cal_cool.csv -o model.json --report report/",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=DefaultsHelpFormatter,
     )
     p.add_argument("runs", nargs="+", metavar="RUN.csv", help="calibration runs; blocks never straddle two runs")
     p.add_argument("-o", "--output", metavar="MODEL.json", help="model file to write (required unless --compare)")
     p.add_argument(
         "--method", choices=(*METHODS, "auto"), default="pso-svr",
-        help="model family; auto: choose the family and the input set by held-out error (leave-one-run-out, "
-        "or blocked time folds for one run) among linear, ls-poly, rbf-nn, pso-svr on the --auto-inputs sets",
+        help="model family; auto: choose the family and the input set by nested held-out error (leave-one-run-out, "
+        "or blocked time folds for one run; each family tuned without the fold it is scored on) among linear, "
+        "ls-poly, rbf-nn, pso-svr on the --auto-inputs sets",
     )  # fmt: skip
     p.add_argument(
         "--inputs", metavar="LIST", default=None,
