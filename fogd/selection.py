@@ -7,7 +7,7 @@ several runs, blocked time folds with one), where the model that predicts a held
 fitted without it (its hyper-parameters chosen by inner folds of the other runs only), and the held-out
 inputs are clamped to the training rows' range as the daemon clamps them to the calibrated domain. Plain
 cross-validation with hyper-parameters tuned on the same folds flatters the tuned families: on the simulated
-runs of tools/accuracy_table.py the PSO-SVR scored 6 % better than linear that way and 1.4 % nested, and it
+runs of tools/accuracy_table.py the PSO-SVR scored 6 % better than linear that way and 0.6 % nested, and it
 was worse than linear on a held-out run. Regularisation is tuned by held-out error only: ls-poly's terms (`full`,
 or `temp`: powers of the temperatures, rates linear) and order (1..5), rbf-nn's L1 alpha, pso-svr's C,
 epsilon, sigma (cv fitness).
