@@ -42,7 +42,7 @@ def _point_dot(xs: Sequence[float], weights: tuple) -> float:
 
 def _row_dot(rows: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """rows @ weights, summed row by row so a row's result never depends on how many rows came with it
-    (BLAS may round differently by batch size; the daemon and replay must agree bit for bit)."""
+    (BLAS may round differently by batch size; replay's large chunks and the daemon's must agree bit for bit)."""
     return (rows * weights).sum(axis=1)
 
 
