@@ -12,6 +12,10 @@ select() loop does both, so writing and reading timestamps share one clock and n
   (c) CPU seconds per second (utime + stime from /proc/<pid>/stat) at 200 and 1,000 frames/s.
   (d) peak RSS (VmHWM, /proc/<pid>/status); target < 80 MB; and whether any scikit-learn file is mapped
       into the daemon (/proc/<pid>/maps): it must never import it.
+  (e) where the daemon's time goes: each stage's cost per frame, in this process with fogd's own classes;
+  (f) inside the daemon at 1,000 frames/s: from the return of the read that completed a frame (the reader
+      thread) to the compensation of that frame (the loop thread), the part of (b) the reader/loop split
+      costs; measured in a second fogd started with Daemon.compensate wrapped to time it.
 
 Usage: python tools/bench_daemon.py [--quick]
 """
@@ -243,6 +247,47 @@ def fogd_command(model: str, switch_interval_s: float | None = None):
     return command
 
 
+# fogd with Daemon.compensate timed: monotonic() at the call minus the reader's receive time of the batch's first
+# record; at exit, percentiles of the last 5,000 on stderr (a line starting HANDOVER_US)
+HANDOVER_PROBE = """
+import atexit, sys, time
+import numpy as np
+from fogd import daemon
+waits, compensate = [], daemon.Daemon.compensate
+def timed(self, records):
+    if len(records):
+        waits.append(time.monotonic() - float(records["t_rx_s"][0]))
+    return compensate(self, records)
+daemon.Daemon.compensate = timed
+atexit.register(lambda: sys.stderr.write("HANDOVER_US " + " ".join(
+    f"{np.percentile(np.array(waits[-5000:]) * 1e6, q):.0f}" for q in (50, 90, 99)) + "\\n") if waits else None)
+from fogd.cli.daemon import main
+sys.argv[0] = "fogd"
+sys.exit(main())
+"""
+
+
+def handover_command(model: str):
+    def command(port: str, out: str) -> list[str]:
+        return [sys.executable, "-c", HANDOVER_PROBE, "--port", port, "--protocol", "kvh-a", "--out", out,
+                "--out-format", "same", "--model", model, "--rate-hz", "1000", "--status-interval-s", "3600", "-q"]  # fmt: skip
+    return command
+
+
+def measure_handover(model: str, latency_s: float) -> list[str]:
+    """p50, p90, p99 (us) of read -> compensation inside fogd at 1,000 frames/s."""
+    harness = Harness("fogd (compensate timed)", handover_command(model))
+    try:
+        harness.warm_up()
+        harness.run(Step(1000.0, latency_s), latency=True)
+    finally:
+        stderr = harness.stop()
+    line = next((line for line in stderr.splitlines() if line.startswith("HANDOVER_US ")), None)
+    if line is None:
+        raise SystemExit(f"the timed fogd printed no HANDOVER_US line: {stderr}")
+    return line.split()[1:]
+
+
 def relay_command(port: str, out: str) -> list[str]:
     return [sys.executable, str(RELAY), port, out]
 
@@ -394,6 +439,9 @@ def main(argv: list[str] | None = None) -> int:
     for batch in (1, 40):
         print_table(f"3e. Where the daemon's time goes, batches of {batch} frame(s) (in-process, every thread's stages)",
                     ["stage", "us per batch", "us per frame", "share"], stage_costs(args.model, batch, 200 if args.quick else 2000))  # fmt: skip
+    p50, p90, p99 = measure_handover(args.model, latency_s)
+    print_table("3f. Inside fogd at 1000 frames/s: read that completed a frame (reader thread) -> its compensation "
+                "(loop thread), us", ["p50", "p90", "p99"], [[p50, p90, p99]])  # fmt: skip
     for name, good in checks:
         print(f"  {name}: {verdict(good)}")
         ok &= good
