@@ -50,6 +50,8 @@ def test_method_auto_prints_and_stores_the_selection(runs, tmp_path):
     assert "Model selection (--method auto)" in result.stdout and "<- chosen" in result.stdout
     selection = json.loads(model.read_text())["training"]["selection"]
     assert len(selection["candidates"]) == 8 and selection["folds"] == "leave-one-run-out"
+    chosen = selection["chosen"]
+    assert f"(nested held-out RMSE {chosen['held_out_rmse_dph']:.3e} deg/h)" in result.stdout
     assert "Model selection" in (tmp_path / "report" / "report.md").read_text()
 
 

@@ -149,10 +149,10 @@ def body(argv: Sequence[str] | None) -> int:
             "candidates": [candidate.row() for candidate in candidates],
         }
         selection = table_lines(candidates, best, markdown=True)
-        print(f"\nModel selection (--method auto): held-out RMSE of each candidate, "
+        print(f"\nModel selection (--method auto): nested held-out RMSE of each candidate, "
               f"{'leave-one-run-out' if len(runs) >= 2 else f'{args.folds} blocked time folds'}")
         print("\n".join(table_lines(candidates, best)))
-        print(f"chosen: {best.label}")
+        print(f"chosen: {best.label} (nested held-out RMSE {best.held_out_rmse_dph:.3e} deg/h)")
     else:
         prepared = prepare(runs, config)
         methods = list(METHODS) if args.compare else [args.method]
