@@ -63,6 +63,14 @@ class Linear:
         return _point_dot(xs, self._coef) + self.intercept
 
 
+def monomials(xs: np.ndarray, powers: np.ndarray) -> np.ndarray:
+    """Each row's monomials prod_j x_j ** powers_kj: the polynomial's features, in fitting and evaluation alike."""
+    terms = np.ones((xs.shape[0], powers.shape[0]))
+    for column in range(powers.shape[1]):
+        terms *= xs[:, column : column + 1] ** powers[:, column]
+    return terms
+
+
 @dataclass(frozen=True)
 class Polynomial:
     """g(x) = sum_k coef_k prod_j x_j ** powers_kj + intercept (the least-squares polynomial)."""
@@ -72,10 +80,7 @@ class Polynomial:
     intercept: float
 
     def __call__(self, xs: np.ndarray) -> np.ndarray:
-        terms = np.ones((xs.shape[0], self.powers.shape[0]))
-        for column in range(self.powers.shape[1]):
-            terms *= xs[:, column : column + 1] ** self.powers[:, column]
-        return _row_dot(terms, self.coef) + self.intercept
+        return _row_dot(monomials(xs, self.powers), self.coef) + self.intercept
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "_point_terms", tuple(zip(self.powers.tolist(), _floats(self.coef))))

@@ -19,6 +19,7 @@ from sklearn.linear_model import LinearRegression
 from sklearn.pipeline import Pipeline, make_pipeline
 from sklearn.preprocessing import FunctionTransformer, PolynomialFeatures
 
+from fogd.frozen import monomials
 from fogd.models.method import MethodFit
 
 
@@ -41,14 +42,6 @@ def temperature_powers(inputs: int, degree: int, temperature_columns: tuple[int,
             row[column] = power
             rows.append(row)
     return np.array(rows, dtype=np.int64).reshape(-1, inputs)
-
-
-def monomials(xs: np.ndarray, powers: np.ndarray) -> np.ndarray:
-    """Each row's monomials prod_j x_j ** powers_kj (as fogd.frozen.Polynomial evaluates them)."""
-    terms = np.ones((xs.shape[0], powers.shape[0]))
-    for column in range(powers.shape[1]):
-        terms *= xs[:, column : column + 1] ** powers[:, column]
-    return terms
 
 
 def fit_linear(xs: np.ndarray, ys: np.ndarray) -> MethodFit:

@@ -35,10 +35,9 @@ LOG10_LOWER = np.array([-2.0, -4.0, -2.0])  # log10 of C, epsilon (scaled y), si
 LOG10_UPPER = np.array([4.0, 0.0, 2.0])
 # Large C with a thin tube and a mid-sized sigma makes libsvm's SMO crawl (tens of seconds for one
 # 300-row fit); such settings are ill-conditioned, so the search gives up on them after this many SMO
-# iterations and scores them +inf. The final model is then fitted without the cap. On a 4-hour run's 143
-# blocks, 14 % of random settings in the box need more than 10,000 iterations and take 74 % of the time, and
-# the paper's train fitness leads the swarm among them: with 50,000 its 60 x 100 search took 196 s on 2 cores,
-# with 10,000 58 s, for a best fitness 1.6 % higher (tools/bench_train.py).
+# iterations and scores them +inf. The final model is then fitted without the cap. The paper's train fitness
+# leads the swarm among such settings: on a 4-hour run its 60 x 100 search took 196 s on 2 cores with a cap of
+# 50,000, and 58-66 s with 10,000, for a best fitness 1.6 % higher (tools/bench_train.py).
 FITNESS_MAX_ITER = 10_000
 _CACHE_MB = 64  # the whole float32 kernel matrix of 4000 rows; libsvm allocates it only as needed
 
