@@ -8,7 +8,9 @@ over every k (overlapping estimator; N angle samples). The tau grid is octave sp
 to a tenth of the record, beyond which too few independent clusters remain. Read off the curve:
 - angle random walk: the -1/2 slope line sigma = N / sqrt(tau) fitted (in log space, slope fixed) over the
   short-tau points, read at tau = 1 h and given in deg/sqrt(h) (with tau in s, N = sigma(1 s) / 60);
-- bias instability: the curve's minimum / 0.664 (IEEE 952's flicker-floor factor sqrt(2 ln 2 / pi)).
+- bias instability: the curve's minimum / 0.664 (IEEE 952's flicker-floor factor sqrt(2 ln 2 / pi)), only
+  where the curve has one: a minimum at the largest tau computed means the curve is still falling (the record
+  is too short to reach the flicker floor), and the bias instability is reported as not reached (None).
 The angle is summed in float64 after removing the mean rate, which leaves AVAR unchanged and keeps the
 cumulative sum small.
 """
@@ -29,8 +31,15 @@ class AllanResult:
     tau_s: np.ndarray
     adev_dph: np.ndarray  # Allan deviation in deg/h at each tau
     arw_dpsh: float  # angle random walk, deg/sqrt(h)
-    bias_instability_dph: float
-    bias_instability_tau_s: float
+    bias_instability_dph: float | None  # None: not reached (the curve is still falling at its largest tau)
+    bias_instability_tau_s: float  # tau of the curve's minimum (the largest tau when not reached)
+
+    @property
+    def bias_instability_text(self) -> str:
+        """'0.0123 deg/h at tau = 409.6 s', or 'not reached (curve still falling at tau = 409.6 s)'."""
+        if self.bias_instability_dph is None:
+            return f"not reached (curve still falling at tau = {self.bias_instability_tau_s:.4g} s)"
+        return f"{self.bias_instability_dph:.4g} deg/h at tau = {self.bias_instability_tau_s:.4g} s"
 
 
 def octave_taus(samples: int, rate_hz: float, max_fraction: float = MAX_TAU_FRACTION) -> np.ndarray:
@@ -67,22 +76,28 @@ def analyse(rate_dph: np.ndarray, rate_hz: float) -> AllanResult:
     # log sigma = log N - log(tau) / 2, slope fixed: the intercept is the mean of log sigma + log(tau) / 2
     sigma_1s_dph = float(np.exp(np.mean(np.log(adev[short]) + 0.5 * np.log(tau_s[short]))))
     lowest = int(np.argmin(adev))
+    reached = lowest < adev.size - 1
     return AllanResult(
         tau_s=tau_s,
         adev_dph=adev,
         arw_dpsh=sigma_1s_dph / 60.0,
-        bias_instability_dph=float(adev[lowest] / BIAS_INSTABILITY_FACTOR),
+        bias_instability_dph=float(adev[lowest] / BIAS_INSTABILITY_FACTOR) if reached else None,
         bias_instability_tau_s=float(tau_s[lowest]),
     )
 
 
 def summary_lines(results: dict[str, AllanResult]) -> list[str]:
-    """A small table: one row per labelled curve."""
+    """A small table: one row per labelled curve, then a line for each curve whose bias instability was not
+    reached."""
     lines = [f"{'Allan deviation':<24} {'ARW (deg/sqrt h)':>17} {'bias instab. (deg/h)':>21} {'at tau (s)':>11}"]
     for label, result in results.items():
-        lines.append(
-            f"{label:<24} {result.arw_dpsh:>17.4g} {result.bias_instability_dph:>21.4g} {result.bias_instability_tau_s:>11.4g}"
-        )
+        bias = "not reached" if result.bias_instability_dph is None else f"{result.bias_instability_dph:.4g}"
+        lines.append(f"{label:<24} {result.arw_dpsh:>17.4g} {bias:>21} {result.bias_instability_tau_s:>11.4g}")
+    lines += [
+        f"{label}: bias instability: {result.bias_instability_text}"
+        for label, result in results.items()
+        if result.bias_instability_dph is None
+    ]
     return lines
 
 
@@ -95,8 +110,9 @@ def plot(path: str, results: dict[str, AllanResult], title: str) -> None:
 
     figure, axis = plt.subplots(figsize=(7.0, 4.5))
     for label, result in results.items():
-        axis.loglog(result.tau_s, result.adev_dph, "o-", ms=3, label=f"{label} (ARW {result.arw_dpsh:.3g} deg/sqrt h, "
-                    f"BI {result.bias_instability_dph:.3g} deg/h)")  # fmt: skip
+        bias = "not reached" if result.bias_instability_dph is None else f"{result.bias_instability_dph:.3g} deg/h"
+        axis.loglog(result.tau_s, result.adev_dph, "o-", ms=3,
+                    label=f"{label} (ARW {result.arw_dpsh:.3g} deg/sqrt h, BI {bias})")  # fmt: skip
     axis.set_xlabel("tau (s)")
     axis.set_ylabel("Allan deviation (deg/h)")
     axis.set_title(title)

@@ -38,10 +38,44 @@ def test_constant_bias_has_zero_deviation_and_random_walk_rises():
     assert adev[-1] > adev[len(adev) // 2]  # rate random walk: +1/2 slope at long tau
 
 
-def test_bias_instability_is_the_minimum_over_0664_and_summary_prints():
+def test_bias_instability_is_the_minimum_over_0664_where_the_curve_turns_up():
     rng = np.random.default_rng(9)
-    rate = rng.normal(0, 1.0, 100_000) + np.cumsum(rng.normal(0, 1e-3, 100_000))
+    rate = rng.normal(0, 1.0, 100_000) + np.cumsum(rng.normal(0, 1e-3, 100_000))  # white + rate random walk
     result = analyse(rate, 10.0)
+    lowest = int(np.argmin(result.adev_dph))
+    assert 0 < lowest < result.tau_s.size - 1  # the minimum is inside the curve
     assert result.bias_instability_dph == pytest.approx(result.adev_dph.min() / 0.664)
-    assert "ARW" in summary_lines({"before": result})[0]
+    assert result.bias_instability_tau_s == result.tau_s[lowest]
+    lines = summary_lines({"before": result})
+    assert "ARW" in lines[0] and f"{result.bias_instability_dph:.4g}" in lines[1]
+    assert len(lines) == 2 and "not reached" not in "\n".join(lines)
     assert octave_taus(1000, 1.0)[-1] == 64
+
+
+def test_gauss_markov_bias_has_its_floor_inside_the_curve():
+    rng = np.random.default_rng(4)
+    rate_hz, samples, correlation_s = 10.0, 400_000, 3000.0  # about the largest tau: the bias drifts like a walk
+    phi = np.exp(-1.0 / (rate_hz * correlation_s))
+    bias = gauss_markov(rng.normal(0.0, 0.1 * np.sqrt(1 - phi**2), samples), phi)
+    result = analyse(rng.normal(0.0, 1.0, samples) + bias, rate_hz)
+    assert result.bias_instability_dph is not None
+    assert result.tau_s[0] < result.bias_instability_tau_s < result.tau_s[-1]
+
+
+def test_white_noise_only_is_still_falling_so_bias_instability_is_not_reached():
+    result = analyse(np.random.default_rng(3).normal(0.0, 1.0, 200_000), 10.0)
+    assert result.bias_instability_dph is None
+    assert result.bias_instability_tau_s == result.tau_s[-1] == 1638.4
+    lines = summary_lines({"white": result})
+    assert "not reached" in lines[1]
+    assert lines[-1] == "white: bias instability: not reached (curve still falling at tau = 1638 s)"
+
+
+def gauss_markov(noise: np.ndarray, phi: float) -> np.ndarray:
+    """x_k = phi * x_{k-1} + noise_k (a first-order Gauss-Markov process), without scipy."""
+    out = np.empty_like(noise)
+    state = 0.0
+    for index, value in enumerate(noise.tolist()):
+        state = phi * state + value
+        out[index] = state
+    return out
