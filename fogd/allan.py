@@ -87,18 +87,17 @@ def analyse(rate_dph: np.ndarray, rate_hz: float) -> AllanResult:
 
 
 def summary_lines(results: dict[str, AllanResult]) -> list[str]:
-    """A small table: one row per labelled curve, then a line for each curve whose bias instability was not
-    reached."""
+    """A small table: one row per labelled curve, then a line saying which curves did not reach their bias
+    instability."""
     lines = [f"{'Allan deviation':<24} {'ARW (deg/sqrt h)':>17} {'bias instab. (deg/h)':>21} {'at tau (s)':>11}"]
     for label, result in results.items():
         bias = "not reached" if result.bias_instability_dph is None else f"{result.bias_instability_dph:.4g}"
         lines.append(f"{label:<24} {result.arw_dpsh:>17.4g} {bias:>21} {result.bias_instability_tau_s:>11.4g}")
-    lines += [
-        f"{label}: bias instability: {result.bias_instability_text}"
-        for label, result in results.items()
-        if result.bias_instability_dph is None
-    ]
-    return lines
+    falling: dict[str, list[str]] = {}  # one line per tau: the curves usually share their tau grid
+    for label, result in results.items():
+        if result.bias_instability_dph is None:
+            falling.setdefault(result.bias_instability_text, []).append(label)
+    return lines + [f"bias instability: {text} for {', '.join(labels)}" for text, labels in falling.items()]
 
 
 def plot(path: str, results: dict[str, AllanResult], title: str) -> None:

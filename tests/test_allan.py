@@ -66,9 +66,9 @@ def test_white_noise_only_is_still_falling_so_bias_instability_is_not_reached():
     result = analyse(np.random.default_rng(3).normal(0.0, 1.0, 200_000), 10.0)
     assert result.bias_instability_dph is None
     assert result.bias_instability_tau_s == result.tau_s[-1] == 1638.4
-    lines = summary_lines({"white": result})
-    assert "not reached" in lines[1]
-    assert lines[-1] == "white: bias instability: not reached (curve still falling at tau = 1638 s)"
+    lines = summary_lines({"white": result, "also white": result})
+    assert "not reached" in lines[1] and "not reached" in lines[2]
+    assert lines[3:] == ["bias instability: not reached (curve still falling at tau = 1638 s) for white, also white"]
 
 
 def gauss_markov(noise: np.ndarray, phi: float) -> np.ndarray:
