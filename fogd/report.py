@@ -15,11 +15,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from fogd.errors import InputError, describe_os_error
-from fogd.features import TRUE_ERROR_COLUMN, block_samples
-from fogd.flags import Flag
+from fogd.features import TRUE_ERROR_COLUMN
 from fogd.inputs import TEMP, TEMP_RATE
-from fogd.metrics import ErrorStats, block_means
-from fogd.replay import allan_curves, replay, replay_table
+from fogd.metrics import ErrorStats
+from fogd.replay import SETTLE_S, ReplayTable, allan_curves, replay, replay_table
 from fogd.runio import Run
 from fogd.tables import error_table
 
@@ -42,11 +41,13 @@ def write_report(
     *,
     selection: list[str] | None = None,
     allan: bool = False,
+    settle_s: float = SETTLE_S,
 ) -> str:
     """Write the figures and `report.md` into `directory` (created if missing); returns the summary's path.
 
     `selection`: the `--method auto` table (markdown lines); `allan`: add the Allan deviation of each held-out
-    run before and after compensation by the chosen model (table and log-log figure)."""
+    run before and after compensation by the chosen model (table and log-log figure); `settle_s`: the thermal
+    settling table 4 skips at the start of each held-out run (`fogd.replay.block_grid`)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -89,7 +90,7 @@ def write_report(
         name = _save(_convergence_figure(histories, colours), out, "pso_convergence.png")
         lines += ["## PSO convergence", "", f"![PSO convergence]({name})", ""]
     for index, run in enumerate(holdouts, start=1):
-        lines += _holdout_section(index, run, trained, colours, block_s, out)
+        lines += _holdout_section(index, run, trained, colours, block_s, settle_s, out)
         if allan:
             lines += _allan_section(index, run, chosen, trained[chosen], out)
     path = out / SUMMARY
@@ -295,31 +296,31 @@ def _allan_section(index: int, run: Run, chosen: str, t: Trained, out: Path) -> 
 
 
 def _holdout_section(
-    index: int, run: Run, trained: dict[str, Trained], colours: dict[str, str], block_s: float, out: Path
+    index: int, run: Run, trained: dict[str, Trained], colours: dict[str, str], block_s: float, settle_s: float,
+    out: Path,
 ) -> list[str]:
-    """Table 4 and paper figs 7-9 for one run not used for training: one replay per method."""
-    block_n = block_samples(block_s, run.rate_hz)
+    """Table 4 and paper figs 7-9 for one run not used for training: one replay per method, all on the run's
+    one block grid."""
     truth = run.extra.get(TRUE_ERROR_COLUMN)
     figure, axes = _figure(len(trained), height=2.6, sharex=True, sharey=True)
     rows: list[tuple[str, ErrorStats]] = []
-    best: ErrorStats | None = None
+    tables: dict[str, ReplayTable] = {}
     for axis, (method, t) in zip(axes[:, 0], trained.items()):
         result = replay(t.model, run)
-        table = replay_table(run, result, block_s)
+        table = tables[method] = replay_table(run, result, block_s, settle_s=settle_s)
         if not rows:
             rows.append(("Before compensation", table.before))
         rows.append((method, table.after))
-        best = table.best
-        use = (result.flags & (Flag.WARMUP | Flag.RATE_INVALID | Flag.TEMP_INVALID)) == 0
-        hours = block_means(run.t_s - run.t_s[0], use, block_n)[0] / 3600.0
-        before = block_means(run.rate_dph, use, block_n)[0]
-        after = block_means(result.rate_comp_dph, use, block_n)[0]
+        grid = table.grid
+        hours = grid.means(run.t_s - run.t_s[0]) / 3600.0
+        before = grid.means(run.rate_dph)
+        after = grid.means(result.rate_comp_dph)
         axis.plot(hours, before - before.mean(), ".-", color=BEFORE, lw=0.8, ms=3,
                   label=f"before (RMSE {table.before.rmse_dph:.3g} deg/h)")  # fmt: skip
         axis.plot(hours, after - after.mean(), ".-", color=colours[method], lw=1.4, ms=3,
                   label=f"{method} (RMSE {table.after.rmse_dph:.3g} deg/h)")  # fmt: skip
         if truth is not None:
-            ideal = block_means(run.rate_dph - truth, use, block_n)[0]
+            ideal = grid.means(run.rate_dph - truth)
             axis.plot(hours, ideal - ideal.mean(), "--", color=TRUTH, lw=1.0,
                       label=f"best possible (RMSE {table.best.rmse_dph:.3g} deg/h)")  # fmt: skip
         axis.set_ylabel("rate - mean (deg/h)")
@@ -327,16 +328,35 @@ def _holdout_section(
         axis.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     axes[0, 0].set_title(f"{run.name}: real-time compensation of a run not used for training ({block_s:g} s block means)")
     axes[-1, 0].set_xlabel("time (h)")
-    if best is not None:
-        rows.append(("Best possible (true error removed)", best))
+    first = next(iter(tables.values()))
+    if first.best is not None:
+        rows.append(("Best possible (true error removed)", first.best))
     name = _save(figure, out, f"holdout_{index}_{_slug(Path(run.name).stem)}.png")
     return [
         f"## Table 4: {run.name}, not used for training",
         "",
-        f"Block means of {block_s:g} s about the run mean ({run.rows} rows at {run.rate_hz:.6g} Hz).",
+        f"{first.blocks} block means of {block_s:g} s about the run mean ({run.rows} rows at {run.rate_hz:.6g} Hz), "
+        f"{_settling(first, settle_s)}; the same blocks for every row.",
         "",
         error_table(rows, markdown=True),
+        "",
+        "Share of the table's samples outside the calibrated domain: compensated by the domain guard's linear "
+        "fallback (OUT_OF_DOMAIN), or with an input clamped to the calibrated range (CLAMPED).",
+        "",
+        "| Method | linear fallback | clamped |",
+        "|---|---:|---:|",
+        *(f"| {method} | {_percent(table.fallback_share)} | {_percent(table.clamped_share)} |" for method, table in tables.items()),
         "",
         f"![{run.name}: compensation]({name})",
         "",
     ]
+
+
+def _settling(table: ReplayTable, settle_s: float) -> str:
+    if table.settle_fallback:
+        return f"from the first row (the run is too short for one block after {settle_s:g} s of settling)"
+    return f"from {table.settle_s:g} s after the first row (thermal settling skipped)"
+
+
+def _percent(share: float) -> str:
+    return "-" if share != share else f"{100.0 * share:.1f} %"

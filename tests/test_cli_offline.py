@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -61,6 +62,12 @@ def test_sim_train_replay_round_trip(runs, tmp_path):
     replayed = command("fogd-replay", model_path, runs["cool"], "-o", out)
     assert replayed.returncode == 0, replayed.stderr
     assert "Table 4" in replayed.stdout and "Best possible" in replayed.stdout
+    # cool.csv: 4200 s at 10 Hz; 600 s of settling skipped, then 36 blocks of 100 s
+    assert "36 blocks of 100 s from 600 s after the first row" in replayed.stdout
+    assert re.search(r"^domain guard: \d+\.\d % of samples took the linear fallback; \d+\.\d % were clamped$",
+                     replayed.stdout, re.M)  # fmt: skip
+    unsettled = command("fogd-replay", model_path, runs["cool"], "--settle-s", "0", "--no-allan")
+    assert unsettled.returncode == 0 and "42 blocks of 100 s from 0 s after the first row" in unsettled.stdout
     recorded = read_run(runs["cool"])
     header = out.read_text().splitlines()[0]
     assert header == "t_s,rate_dph,temp_c,temp_rate_cps,comp_dph,rate_comp_dph,flags"

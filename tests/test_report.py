@@ -10,6 +10,7 @@ import pytest
 
 from fogd.errors import InputError
 from fogd.models import METHODS, FitOptions
+from fogd.replay import replay, replay_table
 from fogd.report import write_report
 from fogd.runio import Run, read_run, write_csv
 from fogd.training import TrainConfig, Trained, prepare, train
@@ -59,6 +60,22 @@ def test_summary_has_the_tables(report: Path) -> None:
     assert text.count("| Before compensation |") == 2
     assert "| Best possible (true error removed) |" in text
     assert "heat.csv" in text and "cool.csv" in text
+
+
+def test_holdout_table_is_on_the_settled_grid_with_shares_of_fallback_and_clamping(
+    trained_runs: tuple[dict[str, Trained], list[Run]], report: Path
+) -> None:
+    trained, (holdout,) = trained_runs
+    text = report.read_text(encoding="utf-8")
+    table4 = text[text.index("## Table 4: holdout.csv") :]
+    assert "50 block means of 60 s" in table4 and "from 600 s after the first row" in table4
+    assert "| Method | linear fallback | clamped |" in table4
+    for method, t in trained.items():
+        table = replay_table(holdout, replay(t.model, holdout), 60.0)
+        row = f"| {method} | {100 * table.fallback_share:.1f} % | {100 * table.clamped_share:.1f} % |"
+        assert row in table4, row
+    before = re.search(r"^\| Before compensation \| (\S+) \|", table4, re.M).group(1)
+    assert float(before) == pytest.approx(table.before.rmse_dph, rel=1e-3)
 
 
 def test_every_linked_figure_is_a_png(report: Path) -> None:

@@ -6,10 +6,10 @@ import sys
 from typing import Sequence
 
 from fogd import modelfile
-from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, positive_float, run
+from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, non_negative_float, positive_float, run
 from fogd.flags import Flag
 from fogd.allan import plot, summary_lines
-from fogd.replay import allan_curves, replay, replay_table
+from fogd.replay import SETTLE_S, ReplayTable, allan_curves, replay, replay_table
 from fogd.runio import read_run, write_csv
 from fogd.tables import error_table
 
@@ -39,6 +39,11 @@ def parser() -> ArgumentParser:
     p.add_argument("-o", "--output", metavar="OUT.csv", help="compensated CSV to write ('-' for stdout)")
     p.add_argument("--block-s", type=positive_float, default=100.0, help="block length for table 4, in seconds")
     p.add_argument(
+        "--settle-s", type=non_negative_float, default=SETTLE_S,
+        help="thermal settling at the start of the run that table 4 skips, in seconds (0 when the run is too "
+        "short for one block after it)",
+    )  # fmt: skip
+    p.add_argument(
         "--allan-plot", metavar="PNG",
         help="write a log-log figure of the overlapping Allan deviation before and after compensation",
     )  # fmt: skip
@@ -65,13 +70,17 @@ def body(argv: Sequence[str] | None) -> int:
             },
             OUTPUT_FORMATS,
         )
-    table = replay_table(recorded, result, args.block_s)
+    table = replay_table(recorded, result, args.block_s, settle_s=args.settle_s)
     report = sys.stderr if args.output == "-" else sys.stdout
-    print(f"Table 4: {recorded.name} with {model.name} ({model.method}), {table.blocks} blocks of {args.block_s:g} s", file=report)
+    print(
+        f"Table 4: {recorded.name} with {model.name} ({model.method}), {table.blocks} blocks of {args.block_s:g} s "
+        f"{_settling(table, args.settle_s)}", file=report,
+    )  # fmt: skip
     rows = [("Before compensation", table.before), (model.method, table.after)]
     if table.best is not None:
         rows.append(("Best possible (true error removed)", table.best))
     print(error_table(rows), file=report)
+    print(_domain_shares(table, model.meta.get("domain_guard") is not None), file=report)
     print(_flag_counts(result.flags), file=report)
     if not args.no_allan or args.allan_plot:
         curves = allan_curves(recorded, result)
@@ -82,6 +91,23 @@ def body(argv: Sequence[str] | None) -> int:
             plot(args.allan_plot, curves, f"{recorded.name}: overlapping Allan deviation ({model.method})")
             print(f"wrote {args.allan_plot}", file=sys.stderr)
     return 0
+
+
+def _settling(table: ReplayTable, settle_s: float) -> str:
+    if table.settle_fallback:
+        return f"from the first row (too short for one block after {settle_s:g} s of settling)"
+    return f"from {table.settle_s:g} s after the first row"
+
+
+def _domain_shares(table: ReplayTable, guarded: bool) -> str:
+    clamped = f"{_percent(table.clamped_share)} were clamped"
+    if not guarded:
+        return f"domain: no guard in this model; {clamped}"
+    return f"domain guard: {_percent(table.fallback_share)} of samples took the linear fallback; {clamped}"
+
+
+def _percent(share: float) -> str:
+    return "-" if share != share else f"{100.0 * share:.1f} %"  # NaN: no block in the table
 
 
 def _flag_counts(flags) -> str:
