@@ -114,6 +114,14 @@ _BUILTIN: dict[str, tuple[str, tuple[tuple[float, float], ...]]] = {
         "10 C to 40 C in 1 h, then a 2 h soak (the thermal transient dies out)",
         ((0.25 * HOUR_S, 10.0), (1.0 * HOUR_S, 40.0), (2.0 * HOUR_S, 40.0)),
     ),
+    "cool-40-to-0": (
+        "40 C to 0 C cooling in 2 h (20 C/h), 1 h soaks before and after",
+        ((1.0 * HOUR_S, 40.0), (2.0 * HOUR_S, 0.0), (1.0 * HOUR_S, 0.0)),
+    ),
+    "fast-cycle": (
+        "10 C up to 40 C and back in 30 min each (60 C/h), then a soak",
+        ((0.5 * HOUR_S, 10.0), (0.5 * HOUR_S, 40.0), (0.5 * HOUR_S, 10.0), (1.0 * HOUR_S, 10.0)),
+    ),
 }
 
 

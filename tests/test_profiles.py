@@ -83,3 +83,17 @@ def test_missing_profile_file_is_an_input_error(tmp_path: Path):
 def test_profile_built_in_code_rejects_bad_segments():
     with pytest.raises(ValueError, match="entry 1"):
         Profile("t", ((float("nan"), 20.0),))
+
+
+@pytest.mark.parametrize(
+    ("name", "times_s", "expected_c"),
+    [
+        ("cool-40-to-0", [0.0, 3600.0, 7200.0, 10_800.0, 14_400.0], [40.0, 40.0, 20.0, 0.0, 0.0]),
+        ("fast-cycle", [0.0, 1800.0, 2700.0, 3600.0, 5400.0, 9000.0], [10.0, 10.0, 25.0, 40.0, 10.0, 10.0]),
+    ],
+)
+def test_held_out_builtins_have_their_soaks_and_ramps(name, times_s, expected_c):
+    profile = profiles.builtin(name)
+    assert profile.duration_s == times_s[-1]
+    assert profile.setpoint_c(np.array(times_s)).tolist() == expected_c
+    assert name in profiles.names() and profiles.summary(name)
