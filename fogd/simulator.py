@@ -1,14 +1,21 @@
 """Physics-based simulation of a FOG in a thermal chamber: the run a real chamber test would record.
 
-The chamber air follows the profile's setpoint through a first-order lag; the FOG housing lags the air, the
-fibre coil's outer layer lags the housing and its inner layer lags the outer layer; the temperature sensor
-lags the housing. These five states are integrated exactly (matrix exponential, first-order hold on the
-setpoint) on a coarse thermal step and interpolated to the output rate. The thermal error is driven by the
-COIL temperatures (a cubic static term, the Shupe terms of the paper's eq. 3-4 in the coil's mean
-temperature rate and radial-gradient rate, and a heating/cooling hysteresis), so a model fed the sensor's
-temperature can never be perfect. Angle random walk, bias instability, a turn-on bias and the Earth rate
-are added on top and are not part of `true_error_dph`. The sensor reports a slow, noisy, quantised,
-sample-and-hold housing temperature. Everything is seeded and reproducible.
+This module owns the physics (`SimParams`, `simulate`, `Simulation`) and the named variants a run can be
+made with: the noise grades (`NOISE_PRESETS`), the coil's thermal structures (`THERMAL_STRUCTURES`) and the
+sensor's mountings (`SENSOR_MOUNTS`), combined by `params_for`.
+
+The chamber air follows the profile's setpoint through a first-order lag; the FOG housing lags the air
+(through a baseplate node when the sensor is mounted there). The fibre coil is either "lumped" (an outer
+layer lagging the housing and an inner layer lagging the outer one) or "diffusive" (a chain of
+`coil_nodes` layers exchanging heat with their neighbours, the outermost with the housing). The
+temperature sensor lags the part it is mounted on. These states are integrated exactly (matrix
+exponential, first-order hold on the setpoint) on a coarse thermal step and interpolated to the output
+rate. The thermal error is driven by the COIL temperatures (a cubic static term, the Shupe terms of the
+paper's eq. 3-4 in the coil's mean temperature rate and radial-gradient rate, and a heating/cooling
+hysteresis), so a model fed the sensor's temperature can never be perfect. Angle random walk, bias
+instability, a turn-on bias and the Earth rate are added on top and are not part of `true_error_dph`. The
+sensor reports a slow, noisy, quantised, sample-and-hold temperature. Everything is seeded and
+reproducible.
 """
 
 from __future__ import annotations
@@ -25,6 +32,18 @@ from fogd.profiles import Profile
 EARTH_RATE_DPH = 15.041
 MIN_RATE_HZ = 1.0
 MAX_RATE_HZ = 5000.0
+THERMAL_STRUCTURES = ("lumped", "diffusive")
+SENSOR_MOUNTS = ("housing", "baseplate")
+MAX_COIL_NODES = 50
+
+# Noise grades (SimParams fields). "tactical" is SimParams' default, where the thermal error is only 1.4-3.4x
+# the noise floor of 100 s block means and every model looks alike. "navigation" is a gyro like the paper's:
+# 30-100x on the built-in profiles in both structures (medians over seeds: paper-test ~33, cooling ~91). That
+# window is barely wider than the profiles' own spread of error, so a run now and then lands just outside.
+NOISE_PRESETS: dict[str, dict[str, float]] = {
+    "tactical": {"arw_dpsh": 0.004, "bias_instability_dph": 0.005},
+    "navigation": {"arw_dpsh": 0.00014, "bias_instability_dph": 0.0001},
+}
 
 
 @dataclass(frozen=True)
@@ -33,8 +52,13 @@ class SimParams:
 
     chamber_tau_s: float = 120.0
     housing_tau_s: float = 1500.0
-    coil_outer_tau_s: float = 300.0
-    coil_inner_tau_s: float = 240.0
+    coil_outer_tau_s: float = 300.0  # the outermost coil layer's lag behind the housing on a steady ramp
+    coil_inner_tau_s: float = 240.0  # lumped: the inner layer's lag behind the outer one
+    thermal: str = "lumped"  # one of THERMAL_STRUCTURES
+    coil_nodes: int = 6  # diffusive: layers in the chain; the two ramp lags hold whatever the count
+    coil_diffusion_tau_s: float = 400.0  # diffusive: the innermost node's lag behind the outermost on a ramp
+    sensor_on: str = "housing"  # one of SENSOR_MOUNTS
+    baseplate_tau_s: float = 300.0  # sensor_on="baseplate": the plate lags the air and the housing lags it
     sensor_tau_s: float = 20.0
     sensor_rate_hz: float = 4.0
     sensor_resolution_c: float = 0.0625  # a DS18B20's LSB; 1.0 for a KVH's whole degrees
@@ -54,12 +78,20 @@ class SimParams:
     thermal_step_s: float = 0.5
 
     def __post_init__(self) -> None:
-        positive = ("chamber_tau_s", "housing_tau_s", "coil_outer_tau_s", "coil_inner_tau_s", "sensor_tau_s",
-                    "sensor_rate_hz", "sensor_resolution_c", "static_half_span_c", "hysteresis_deadband_c",
-                    "thermal_step_s")
+        positive = ("chamber_tau_s", "housing_tau_s", "coil_outer_tau_s", "coil_inner_tau_s",
+                    "coil_diffusion_tau_s", "baseplate_tau_s", "sensor_tau_s", "sensor_rate_hz",
+                    "sensor_resolution_c", "static_half_span_c", "hysteresis_deadband_c", "thermal_step_s")
         non_negative = ("sensor_noise_c", "hysteresis_dph", "arw_dpsh", "bias_instability_dph", "turn_on_bias_dph")
+        for name, allowed in (("thermal", THERMAL_STRUCTURES), ("sensor_on", SENSOR_MOUNTS)):
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"{name} must be one of {', '.join(allowed)}, got {getattr(self, name)!r}")
+        nodes = self.coil_nodes
+        if isinstance(nodes, bool) or not isinstance(nodes, int) or not 2 <= nodes <= MAX_COIL_NODES:
+            raise ValueError(f"coil_nodes must be a whole number within 2..{MAX_COIL_NODES}, got {nodes!r}")
         for field in fields(self):
             value = getattr(self, field.name)
+            if isinstance(value, str):
+                continue
             values = value if isinstance(value, tuple) else (value,)
             if not all(math.isfinite(v) for v in values):
                 raise ValueError(f"{field.name} must be finite, got {value!r}")
@@ -77,6 +109,16 @@ class SimParams:
         return replace(self, sensor_noise_c=0.0, arw_dpsh=0.0, bias_instability_dph=0.0, turn_on_bias_dph=0.0)
 
 
+def params_for(noise: str = "tactical", thermal: str = "lumped", **overrides: object) -> SimParams:
+    """SimParams for a noise grade (NOISE_PRESETS) and thermal structure; `overrides` win over the preset.
+
+    params_for() is SimParams(), today's default gyro.
+    """
+    if noise not in NOISE_PRESETS:
+        raise ValueError(f"noise must be one of {', '.join(NOISE_PRESETS)}, got {noise!r}")
+    return SimParams(**{**NOISE_PRESETS[noise], "thermal": thermal, **overrides})  # type: ignore[arg-type]
+
+
 @dataclass
 class SimRun:
     """A simulated run at the output rate; coil, housing and chamber temperatures are for diagnostics."""
@@ -88,8 +130,8 @@ class SimRun:
     setpoint_c: np.ndarray
     chamber_c: np.ndarray
     housing_c: np.ndarray
-    coil_outer_c: np.ndarray
-    coil_inner_c: np.ndarray
+    coil_outer_c: np.ndarray  # the outermost coil layer (node)
+    coil_inner_c: np.ndarray  # the innermost coil layer (node)
     rate_hz: float
     seed: int
     turn_on_bias_dph: float
@@ -98,8 +140,16 @@ class SimRun:
     profile: Profile
 
 
-# Thermal state order: chamber air, housing, coil outer layer, coil inner layer, sensor element.
-_AIR, _HOUSING, _OUTER, _INNER, _SENSOR = range(5)
+@dataclass(frozen=True)
+class ThermalNetwork:
+    """The thermal states as dx/dt = a x + b u (u the setpoint), and which state is which."""
+
+    a: np.ndarray
+    b: np.ndarray
+    air: int
+    housing: int
+    coil: tuple[int, ...]  # outermost first
+    sensor: int
 
 
 def simulate(profile: Profile, rate_hz: float, seed: int, params: SimParams | None = None) -> SimRun:
@@ -126,19 +176,21 @@ class Simulation:
         self.rows = int(math.floor(profile.duration_s * rate_hz + 1e-9)) + 1
         turn_on_rng, bias_rng, sensor_rng = (np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(key,)))
                                              for key in range(3))
-        self.grid_t_s, self.states, rates = _thermal_states(profile, params)
-        coil_mean_c = 0.5 * (self.states[_OUTER] + self.states[_INNER])
+        self.network = net = _network(params)
+        self.grid_t_s, self.states, rates = _thermal_states(profile, params.thermal_step_s, net)
+        coil = list(net.coil)
+        coil_mean_c = self.states[coil].mean(axis=0)
         self.error_grid_dph = (
             _static_error_dph(coil_mean_c, params)
             # Shupe (eq. 3) as in IEEE 952's model (eq. 4): the coil's mean temperature rate and gradient rate.
-            + params.shupe_rate_dph_per_cps * 0.5 * (rates[_OUTER] + rates[_INNER])
-            + params.shupe_gradient_rate_dph_per_cps * (rates[_OUTER] - rates[_INNER])
+            + params.shupe_rate_dph_per_cps * rates[coil].mean(axis=0)
+            + params.shupe_gradient_rate_dph_per_cps * (rates[coil[0]] - rates[coil[-1]])
             + _hysteresis_dph(coil_mean_c, params)
         )
         self.bias_grid_dph = _bias_instability_dph(self.grid_t_s.size, params, bias_rng)
         self.turn_on_bias_dph = float(turn_on_rng.normal(0.0, params.turn_on_bias_dph))
         self.earth_rate_dph = EARTH_RATE_DPH * math.sin(math.radians(params.latitude_deg))  # vertical (zenith) axis
-        self.sensor_c = _sensor_readings_c(self.duration_s, self.grid_t_s, self.states[_SENSOR], params, sensor_rng)
+        self.sensor_c = _sensor_readings_c(self.duration_s, self.grid_t_s, self.states[net.sensor], params, sensor_rng)
 
     @property
     def duration_s(self) -> float:
@@ -159,13 +211,14 @@ class Simulation:
         """The whole run, with the thermal states at the output rate for diagnostics."""
         columns = self.columns()
         t_s = columns["t_s"]
+        net = self.network
         return SimRun(
             **columns,
             setpoint_c=self.profile.setpoint_c(t_s),
-            chamber_c=np.interp(t_s, self.grid_t_s, self.states[_AIR]),
-            housing_c=np.interp(t_s, self.grid_t_s, self.states[_HOUSING]),
-            coil_outer_c=np.interp(t_s, self.grid_t_s, self.states[_OUTER]),
-            coil_inner_c=np.interp(t_s, self.grid_t_s, self.states[_INNER]),
+            chamber_c=np.interp(t_s, self.grid_t_s, self.states[net.air]),
+            housing_c=np.interp(t_s, self.grid_t_s, self.states[net.housing]),
+            coil_outer_c=np.interp(t_s, self.grid_t_s, self.states[net.coil[0]]),
+            coil_inner_c=np.interp(t_s, self.grid_t_s, self.states[net.coil[-1]]),
             rate_hz=self.rate_hz,
             seed=self.seed,
             turn_on_bias_dph=self.turn_on_bias_dph,
@@ -188,36 +241,60 @@ class Simulation:
         return np.concatenate(blocks)[start - first * size : stop - first * size]
 
 
-def _thermal_states(profile: Profile, params: SimParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(grid times, states[5, n], state rates[5, n] in C/s) on the thermal step, starting soaked at the start."""
-    step_s = params.thermal_step_s
+def _network(params: SimParams) -> ThermalNetwork:
+    """The chamber, FOG and sensor as a linear thermal network (state order: air, housing, coil, sensor[, plate])."""
+    lumped = params.thermal == "lumped"
+    nodes = 2 if lumped else params.coil_nodes
+    air, housing, coil, sensor = 0, 1, tuple(range(2, 2 + nodes)), 2 + nodes
+    plate = sensor + 1 if params.sensor_on == "baseplate" else None
+    size = sensor + (2 if plate is not None else 1)
+    a = np.zeros((size, size))
+    b = np.zeros(size)
+
+    def couple(stage: int, source: int | None, tau_s: float) -> None:
+        """`stage` relaxes towards `source` (the setpoint when None) with time constant `tau_s`."""
+        a[stage, stage] -= 1.0 / tau_s
+        if source is None:
+            b[stage] += 1.0 / tau_s
+        else:
+            a[stage, source] += 1.0 / tau_s
+
+    couple(air, None, params.chamber_tau_s)
+    couple(housing, air if plate is None else plate, params.housing_tau_s)
+    if lumped:
+        couple(coil[0], housing, params.coil_outer_tau_s)
+        couple(coil[1], coil[0], params.coil_inner_tau_s)
+    else:
+        # Equal layers: the housing contact carries the whole coil's heat (so the outermost node's ramp lag is
+        # coil_outer_tau_s), and link j carries the heat of the nodes inside it (so the lags add up to
+        # coil_diffusion_tau_s). The coil is too light to load the housing; its hub is adiabatic.
+        couple(coil[0], housing, params.coil_outer_tau_s / nodes)
+        link_tau_s = 2.0 * params.coil_diffusion_tau_s / (nodes * (nodes - 1))
+        for outer, inner in zip(coil[:-1], coil[1:]):
+            couple(outer, inner, link_tau_s)
+            couple(inner, outer, link_tau_s)
+    if plate is not None:
+        couple(plate, air, params.baseplate_tau_s)
+    couple(sensor, housing if plate is None else plate, params.sensor_tau_s)
+    return ThermalNetwork(a, b, air, housing, coil, sensor)
+
+
+def _thermal_states(profile: Profile, step_s: float, net: ThermalNetwork) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(grid times, states[n, k], state rates[n, k] in C/s) on the thermal step, starting soaked at the start."""
     grid_t_s = np.arange(int(math.ceil(profile.duration_s / step_s)) + 1) * step_s
     setpoint_c = profile.setpoint_c(grid_t_s)
-    # dx/dt = A x + b u: every stage is a first-order lag on the stage it is mounted in.
-    a = np.zeros((5, 5))
-    b = np.zeros(5)
-    for stage, source, tau_s in (
-        (_AIR, None, params.chamber_tau_s),
-        (_HOUSING, _AIR, params.housing_tau_s),
-        (_OUTER, _HOUSING, params.coil_outer_tau_s),
-        (_INNER, _OUTER, params.coil_inner_tau_s),
-        (_SENSOR, _HOUSING, params.sensor_tau_s),
-    ):
-        a[stage, stage] = -1.0 / tau_s
-        if source is None:
-            b[stage] = 1.0 / tau_s
-        else:
-            a[stage, source] = 1.0 / tau_s
+    a, b = net.a, net.b
+    n = b.size
     # Exact discretisation for a setpoint linear over each step: augment with u and du/dt and exponentiate.
-    augmented = np.zeros((7, 7))
-    augmented[:5, :5] = a
-    augmented[:5, 5] = b
-    augmented[5, 6] = 1.0
+    augmented = np.zeros((n + 2, n + 2))
+    augmented[:n, :n] = a
+    augmented[:n, n] = b
+    augmented[n, n + 1] = 1.0
     transition = expm(augmented * step_s)
-    phi, gain_u, gain_slope = transition[:5, :5], transition[:5, 5], transition[:5, 6]
+    phi, gain_u, gain_slope = transition[:n, :n], transition[:n, n], transition[:n, n + 1]
     slope_cps = np.append(np.diff(setpoint_c) / step_s, 0.0)
-    states = np.empty((grid_t_s.size, 5))
-    state = np.full(5, profile.start_c)
+    states = np.empty((grid_t_s.size, n))
+    state = np.full(n, profile.start_c)
     for k in range(grid_t_s.size):
         states[k] = state
         state = phi @ state + gain_u * setpoint_c[k] + gain_slope * slope_cps[k]

@@ -1,13 +1,24 @@
-"""The chamber simulator: thermal lags, sensor behaviour, noise levels, error magnitudes, hysteresis, seeds."""
+"""The chamber simulator: thermal lags, sensor behaviour, noise levels, error magnitudes, hysteresis, seeds,
+noise grades, thermal structures and sensor mounts."""
 
+import hashlib
 import math
 
 import numpy as np
 import pytest
+from scipy.integrate import solve_ivp
 
 from fogd import profiles
 from fogd.profiles import Profile
-from fogd.simulator import EARTH_RATE_DPH, SimParams, Simulation, simulate
+from fogd.simulator import (
+    EARTH_RATE_DPH,
+    NOISE_PRESETS,
+    THERMAL_STRUCTURES,
+    SimParams,
+    Simulation,
+    params_for,
+    simulate,
+)
 
 QUIET = SimParams().without_noise()
 RAMP_CPS = 0.005
@@ -170,3 +181,179 @@ def test_bad_parameters_are_refused():
         SimParams(housing_tau_s=0.0)
     with pytest.raises(ValueError, match="arw_dpsh"):
         SimParams(arw_dpsh=-1.0)
+
+
+# --- noise grades, thermal structures and sensor mounts ------------------------------------------------------
+
+# sha256 of simulate(builtin("paper-test"), 10, 1) columns, computed with fogd/simulator.py as it was before the
+# thermal structures and noise grades were added (commit 27c91c5): the default gyro must not change.
+PAPER_TEST_SHA256 = {
+    "rate_dph": "a318f8ba97a1190a1ea9aeabb94d9fdfb13c6a391790b20a35aae20101633331",
+    "temp_c": "6395d225a834f826f882a66a67e66293a2f3f3457c2cb5f14fdaa80476704d4b",
+    "true_error_dph": "17153e2b08ff61f9dc8ab97a0fd71939951333d0090cb117bf7385bbaf2d710a",
+    "coil_inner_c": "aaf38a26312d5cd68ac979c1bbf7dbd3bdf3153e70ce69e92cb7a4bbfcb8ae0f",
+}
+
+
+@pytest.mark.parametrize("params", [None, SimParams(), params_for(), params_for("tactical", "lumped")],
+                         ids=["none", "SimParams()", "params_for()", "tactical-lumped"])
+def test_the_default_gyro_gives_the_same_run_as_before_the_presets(params):
+    run = simulate(profiles.builtin("paper-test"), 10.0, 1, params)
+    for name, digest in PAPER_TEST_SHA256.items():
+        assert hashlib.sha256(getattr(run, name).tobytes()).hexdigest() == digest, name
+
+
+def _ratio_to_noise_floor(run) -> float:
+    """What tools/accuracy_table.py sees: std of 100 s block means with and without the thermal error."""
+    rows = int(100.0 * run.rate_hz)
+    skip = int(600.0 * run.rate_hz)
+    usable = (run.t_s.size - skip) // rows * rows
+
+    def block_means(values: np.ndarray) -> np.ndarray:
+        return values[skip : skip + usable].reshape(-1, rows).mean(axis=1)
+
+    return float(np.std(block_means(run.rate_dph)) / np.std(block_means(run.rate_dph - run.true_error_dph)))
+
+
+@pytest.mark.parametrize("thermal", THERMAL_STRUCTURES)
+@pytest.mark.parametrize("name", ["fast-ramp", "cool-40-to-0"])
+def test_navigation_grade_thermal_error_stands_30_to_100_times_above_the_noise_floor(name, thermal):
+    profile = profiles.builtin(name)
+    navigation = _ratio_to_noise_floor(simulate(profile, 10.0, 1, params_for("navigation", thermal)))
+    assert 30.0 <= navigation <= 100.0
+    tactical = _ratio_to_noise_floor(simulate(profile, 10.0, 1, params_for("tactical", thermal)))
+    assert tactical < 5.0  # why the grade exists: here every model looks alike
+
+
+def test_params_for_applies_the_preset_and_lets_overrides_win():
+    navigation = params_for("navigation", "diffusive", coil_nodes=4)
+    assert navigation.arw_dpsh == NOISE_PRESETS["navigation"]["arw_dpsh"] < SimParams().arw_dpsh
+    assert navigation.bias_instability_dph == NOISE_PRESETS["navigation"]["bias_instability_dph"]
+    assert (navigation.thermal, navigation.coil_nodes) == ("diffusive", 4)
+    assert params_for("navigation", arw_dpsh=0.01).arw_dpsh == 0.01
+    assert params_for("tactical") == SimParams()
+    with pytest.raises(ValueError, match="noise must be one of tactical, navigation"):
+        params_for("strategic")
+
+
+def test_the_turn_on_bias_is_drawn_per_run_under_every_grade():
+    profile = Profile("s", ((60.0, 20.0),))
+    biases = [simulate(profile, 1.0, seed, params_for("navigation")).turn_on_bias_dph for seed in (1, 2)]
+    assert biases[0] != biases[1] and all(biases)
+
+
+def _diffusive(**overrides) -> SimParams:
+    return SimParams(thermal="diffusive", sensor_noise_c=0.0, **overrides)
+
+
+@pytest.mark.parametrize("nodes", [2, 6, 12])
+def test_diffusive_chain_lags_are_the_outer_and_diffusion_time_constants_whatever_the_node_count(nodes):
+    p = _diffusive(coil_nodes=nodes, thermal_step_s=2.0)  # exact on any step: a coarse one is quicker
+    sim = Simulation(LONG_RAMP, 1.0, 0, p)
+    end = int(20_100 / p.thermal_step_s)  # the end of the ramp, on the thermal grid
+    coil_c = sim.states[list(sim.network.coil), end]
+    housing_lag_s = p.chamber_tau_s + p.housing_tau_s
+    assert 100.0 - coil_c[0] == pytest.approx(RAMP_CPS * (housing_lag_s + p.coil_outer_tau_s), rel=1e-3)
+    assert coil_c[0] - coil_c[-1] == pytest.approx(RAMP_CPS * p.coil_diffusion_tau_s, rel=1e-3)
+    assert np.all(np.diff(coil_c) < 0)  # heating: every layer is cooler than the one outside it
+
+
+def test_diffusive_chain_settles_at_the_chamber_temperature_after_a_long_soak():
+    sim = Simulation(LONG_RAMP, 1.0, 0, _diffusive(thermal_step_s=2.0))
+    assert sim.states[:, -1] == pytest.approx(np.full(sim.states.shape[0], 100.0), abs=1e-3)
+    run = sim.run()
+    assert run.coil_outer_c[-1] == pytest.approx(100.0, abs=1e-3)
+    assert run.coil_inner_c[-1] == pytest.approx(100.0, abs=1e-3)
+
+
+def test_diffusive_inner_node_lags_the_outer_during_a_ramp_and_catches_up_in_the_soak():
+    run = simulate(profiles.builtin("fast-ramp"), 1.0, 0, _diffusive())
+    ramp_end = 3600
+    gradient_c = run.coil_outer_c - run.coil_inner_c
+    assert gradient_c[ramp_end] > 2.0
+    assert 0.0 < gradient_c[-1] < 0.3 * gradient_c[ramp_end]  # the housing is still warming, more and more slowly
+    # The innermost node reaches each temperature later than the outermost.
+    assert np.argmax(run.coil_inner_c >= 20.0) > np.argmax(run.coil_outer_c >= 20.0) + 60
+
+
+def test_diffusive_error_follows_the_mean_of_all_nodes_and_the_outer_minus_inner_rate():
+    p = _diffusive(static_dph=(0.0, 0.0, 0.0), hysteresis_dph=0.0, shupe_rate_dph_per_cps=5.0,
+                   shupe_gradient_rate_dph_per_cps=40.0).without_noise()
+    sim = Simulation(profiles.builtin("fast-ramp"), 1.0, 0, p)
+    coil_c = sim.states[list(sim.network.coil)]
+    mean_cps = np.gradient(coil_c.mean(axis=0), sim.grid_t_s)
+    gradient_cps = np.gradient(coil_c[0] - coil_c[-1], sim.grid_t_s)
+    expected_dph = 5.0 * mean_cps + 40.0 * gradient_cps
+    assert np.max(np.abs(sim.error_grid_dph - expected_dph)) < 0.01 * np.max(np.abs(expected_dph))
+
+
+def test_diffusive_static_error_is_of_the_mean_of_all_nodes_not_of_the_end_nodes():
+    p = _diffusive(static_dph=(0.06, 0.0, 0.0), hysteresis_dph=0.0, shupe_rate_dph_per_cps=0.0,
+                   shupe_gradient_rate_dph_per_cps=0.0).without_noise()
+    sim = Simulation(profiles.builtin("fast-ramp"), 1.0, 0, p)
+    coil_c = sim.states[list(sim.network.coil)]
+
+    def static_dph(temp_c: np.ndarray) -> np.ndarray:
+        return 0.06 * (temp_c - p.static_ref_c) / p.static_half_span_c
+
+    assert np.allclose(sim.error_grid_dph, static_dph(coil_c.mean(axis=0)), rtol=0.0, atol=1e-12)
+    ends_dph = static_dph(0.5 * (coil_c[0] + coil_c[-1]))
+    assert np.max(np.abs(sim.error_grid_dph - ends_dph)) > 1e-3  # on the ramp the chain's mean is not the ends'
+
+
+@pytest.mark.parametrize("params", [SimParams(), _diffusive(sensor_on="baseplate", coil_nodes=4)],
+                         ids=["lumped", "diffusive-baseplate"])
+def test_the_discretisation_is_exact_against_a_tightly_solved_ode(params):
+    profile = Profile("k", ((30.0, 10.0), (400.0, 50.0), (170.0, 30.0)))
+    sim = Simulation(profile, 1.0, 0, params)
+    a, b = sim.network.a, sim.network.b
+    state = np.full(b.size, 10.0)
+    knots = [(0.0, 10.0), (30.0, 10.0), (430.0, 50.0), (600.0, 30.0)]
+    for (start_s, start_c), (stop_s, stop_c) in zip(knots[:-1], knots[1:]):  # solved segment by segment
+        slope_cps = (stop_c - start_c) / (stop_s - start_s)
+
+        def derivative(t_s, x, start_s=start_s, start_c=start_c, slope_cps=slope_cps):
+            return a @ x + b * (start_c + slope_cps * (t_s - start_s))
+
+        grid = sim.grid_t_s[(sim.grid_t_s >= start_s) & (sim.grid_t_s <= stop_s)]
+        solved = solve_ivp(derivative, (start_s, stop_s), state, method="DOP853", t_eval=grid, rtol=1e-12,
+                           atol=1e-12)
+        k = np.searchsorted(sim.grid_t_s, grid)
+        assert np.max(np.abs(solved.y - sim.states[:, k])) < 1e-8
+        state = solved.y[:, -1]
+
+
+def test_a_baseplate_sensor_leads_the_housing():
+    p = SimParams(sensor_on="baseplate", sensor_noise_c=0.0, sensor_resolution_c=1e-6, thermal_step_s=2.0)
+    run = simulate(LONG_RAMP, 1.0, 0, p)
+    end = 20_100
+    housing_lag_s = p.chamber_tau_s + p.baseplate_tau_s + p.housing_tau_s
+    assert run.setpoint_c[end] - run.housing_c[end] == pytest.approx(RAMP_CPS * housing_lag_s, rel=1e-3)
+    sensor_lag_s = p.chamber_tau_s + p.baseplate_tau_s + p.sensor_tau_s
+    assert run.setpoint_c[end] - run.temp_c[end] == pytest.approx(RAMP_CPS * sensor_lag_s, rel=1e-3)
+
+
+@pytest.mark.parametrize("params", [_diffusive(), SimParams(sensor_on="baseplate"),
+                                    _diffusive(sensor_on="baseplate", coil_nodes=12)],
+                         ids=["diffusive", "lumped-baseplate", "diffusive-baseplate-12"])
+def test_every_structure_keeps_the_papers_error_magnitude(params):
+    run = simulate(profiles.builtin("paper-train"), 1.0, 1, params.without_noise())
+    assert 0.1 <= np.ptp(run.true_error_dph) <= 0.35
+    assert 0.04 <= np.std(run.true_error_dph) <= 0.12
+
+
+@pytest.mark.parametrize(
+    ("overrides", "field"),
+    [
+        ({"thermal": "layered"}, "thermal"),
+        ({"sensor_on": "roof"}, "sensor_on"),
+        ({"coil_nodes": 1}, "coil_nodes"),
+        ({"coil_nodes": 2.5}, "coil_nodes"),
+        ({"coil_nodes": 51}, "coil_nodes"),
+        ({"coil_diffusion_tau_s": 0.0}, "coil_diffusion_tau_s"),
+        ({"baseplate_tau_s": -1.0}, "baseplate_tau_s"),
+    ],
+)
+def test_bad_structure_parameters_are_refused(overrides, field):
+    with pytest.raises(ValueError, match=field):
+        SimParams(**overrides)
