@@ -345,7 +345,7 @@ def _holdout_section(
         "",
         "| Method | linear fallback | clamped |",
         "|---|---:|---:|",
-        *(f"| {method} | {_percent(table.fallback_share)} | {_percent(table.clamped_share)} |" for method, table in tables.items()),
+        *(f"| {method} | {_percent(t.fallback_share)} | {_percent(t.clamped_share)} |" for method, t in tables.items()),
         "",
         f"![{run.name}: compensation]({name})",
         "",
