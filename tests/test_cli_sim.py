@@ -12,7 +12,7 @@ import pytest
 from fogd import profiles
 from fogd.cli.sim import main
 from fogd.runio import read_run
-from fogd.simulator import simulate
+from fogd.simulator import NOISE_PRESETS, params_for, simulate
 
 SHORT_YAML = "- [120, 20]\n- [600, 26]\n- [120, 26]\n"
 COMMAND = [sys.executable, "-c", "import sys; from fogd.cli.sim import main; sys.exit(main())"]
@@ -108,6 +108,18 @@ def test_list_profiles(capsys):
         (["--profile", "cycle", "-o", "x.csv", "--speed"], 2, "--speed"),
         (["--profile", "missing.yaml", "-o", "x.csv"], 65, "missing.yaml"),
         (["--profile", "BAD", "-o", "x.csv"], 65, "entry 2"),
+        (["--profile", "cycle", "-o", "x.csv", "--noise", "strategic"], 2, "--noise"),
+        (["--profile", "cycle", "-o", "x.csv", "--thermal", "layered"], 2, "--thermal"),
+        (["--profile", "cycle", "-o", "x.csv", "--thermal", "diffusive", "--coil-nodes", "1"], 2, "2..50"),
+        (["--profile", "cycle", "-o", "x.csv", "--thermal", "diffusive", "--coil-nodes", "51"], 2, "2..50"),
+        (["--profile", "cycle", "-o", "x.csv", "--thermal", "diffusive", "--coil-nodes", "3.5"], 2, "whole number"),
+        (["--profile", "cycle", "-o", "x.csv", "--coil-nodes", "4"], 2, "--thermal diffusive only"),
+        (["--profile", "cycle", "-o", "x.csv", "--housing-tau-s", "0"], 2, "--housing-tau-s"),
+        (["--profile", "cycle", "-o", "x.csv", "--sensor-tau-s", "-5"], 2, "--sensor-tau-s"),
+        (["--profile", "cycle", "-o", "x.csv", "--sensor-tau-s", "nan"], 2, "--sensor-tau-s"),
+        (["--profile", "cycle", "-o", "x.csv", "--turn-on-bias-dph", "-0.1"], 2, "--turn-on-bias-dph"),
+        (["--profile", "cycle", "-o", "x.csv", "--sensor-on", "roof"], 2, "--sensor-on"),
+        (["--profile", "cycle", "-o", "x.csv", "--baseplate-tau-s", "100"], 2, "--sensor-on baseplate only"),
     ],
 )
 def test_bad_options_give_one_line_and_a_status(tmp_path: Path, capsys, args, status, expected):
@@ -130,5 +142,63 @@ def test_command_process_has_no_traceback_and_a_helpful_help():
     assert bad.stderr.count("\n") == 1 and "Traceback" not in bad.stderr
     helped = subprocess.run(COMMAND + ["--help"], capture_output=True, text=True, timeout=60)
     assert helped.returncode == 0
-    for text in ("--rate-hz", "(default: 200)", "deg/sqrt(h)", "paper-train", "[duration_s, target_c]"):
-        assert text in helped.stdout
+    for text in ("--rate-hz", "(default: 200)", "deg/sqrt(h)", "paper-train", "[duration_s, target_c]",
+                 "--noise", "navigation", "--thermal", "diffusive", "--coil-nodes", "(default: 6)",
+                 "--housing-tau-s", "(default: 1500)", "--sensor-tau-s", "(default: 20)", "--turn-on-bias-dph",
+                 "(default: 0.02)", "cool-40-to-0", "fast-cycle"):
+        assert text in " ".join(helped.stdout.split()), text
+
+
+def _sim(tmp_path: Path, profile: Path, *options: str) -> Path:
+    out = tmp_path / f"run{len(list(tmp_path.glob('run*.csv')))}.csv"
+    assert main(["--profile", str(profile), "-o", str(out), "--rate-hz", "10", "--seed", "4", *options]) == 0
+    return out
+
+
+def test_no_noise_grade_is_the_tactical_grade_and_the_old_default(tmp_path: Path, short_profile: Path):
+    plain, tactical = _sim(tmp_path, short_profile), _sim(tmp_path, short_profile, "--noise", "tactical")
+    assert plain.read_bytes() == tactical.read_bytes()
+    expected = simulate(profiles.load(short_profile), 10.0, 4)
+    assert np.allclose(read_run(plain).rate_dph, expected.rate_dph, atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("options", "arw_dpsh"),
+    [
+        (["--noise", "navigation"], NOISE_PRESETS["navigation"]["arw_dpsh"]),
+        (["--noise", "navigation", "--arw-dpsh", "0.01"], 0.01),  # an explicit value overrides the grade
+        (["--arw-dpsh", "0.01", "--noise", "navigation"], 0.01),
+    ],
+)
+def test_noise_grade_sets_the_white_noise_unless_overridden(tmp_path: Path, short_profile: Path, options, arw_dpsh):
+    out = tmp_path / "run.csv"
+    assert main(["--profile", str(short_profile), "-o", str(out), "--rate-hz", "100", *options]) == 0
+    run = read_run(out)
+    white_dph = np.std(np.diff(run.rate_dph - run.extra["true_error_dph"])) / math.sqrt(2)
+    assert white_dph == pytest.approx(60.0 * arw_dpsh * math.sqrt(100.0), rel=0.1)
+    assert f"ARW {arw_dpsh:g} deg/sqrt(h)" in out.read_text()
+
+
+def test_structure_and_sensor_options_reach_the_simulation(tmp_path: Path, short_profile: Path):
+    options = ["--noise", "navigation", "--bias-instability-dph", "0.002", "--thermal", "diffusive",
+               "--coil-nodes", "4", "--housing-tau-s", "900", "--sensor-on", "baseplate", "--baseplate-tau-s", "200",
+               "--sensor-tau-s", "60", "--turn-on-bias-dph", "0.5"]
+    out = _sim(tmp_path, short_profile, *options)
+    params = params_for("navigation", "diffusive", bias_instability_dph=0.002, coil_nodes=4, housing_tau_s=900.0,
+                        sensor_on="baseplate", baseplate_tau_s=200.0, sensor_tau_s=60.0, turn_on_bias_dph=0.5)
+    expected = simulate(profiles.load(short_profile), 10.0, 4, params)
+    run = read_run(out)
+    assert np.array_equal(run.temp_c, expected.temp_c)
+    assert np.allclose(run.extra["true_error_dph"], expected.true_error_dph, atol=1e-7)
+    assert np.allclose(run.rate_dph, expected.rate_dph, atol=1e-6)
+    assert abs(expected.turn_on_bias_dph) > 0.02  # drawn with the given std, not the default 0.02
+    text = out.read_text()
+    assert "diffusive coil, 4 layers" in text and "sensor: baseplate temperature, lag 60 s" in text
+    assert "housing lag 900 s" in text and "baseplate lag 200 s" in text
+
+
+def test_a_zero_turn_on_bias_leaves_only_the_earth_rate(tmp_path: Path, short_profile: Path):
+    out = _sim(tmp_path, short_profile, "--turn-on-bias-dph", "0", "--arw-dpsh", "0", "--bias-instability-dph", "0")
+    run = read_run(out)
+    earth_dph = 15.041 * math.sin(math.radians(30.5))
+    assert np.allclose(run.rate_dph - run.extra["true_error_dph"], earth_dph, atol=2e-6)

@@ -19,10 +19,32 @@ from fogd import profiles
 from fogd.cli.common import ArgumentParser, number_in, seed
 from fogd.errors import FogdError, UsageError
 from fogd.runio import write_csv
-from fogd.simulator import MAX_RATE_HZ, MIN_RATE_HZ, SimParams, Simulation
+from fogd.simulator import (
+    MAX_COIL_NODES,
+    MAX_RATE_HZ,
+    MIN_RATE_HZ,
+    NOISE_PRESETS,
+    SENSOR_MOUNTS,
+    THERMAL_STRUCTURES,
+    SimParams,
+    Simulation,
+    params_for,
+)
 
 PROG = "fogd-sim"
 DEFAULTS = SimParams()
+positive_s = number_in(0.0, 1e6, "s", low_open=True)
+
+
+def coil_nodes(text: str) -> int:
+    """An argparse type: a whole number of coil layers within 2..MAX_COIL_NODES."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if not 2 <= value <= MAX_COIL_NODES:
+        raise argparse.ArgumentTypeError(f"{text!r} is outside 2..{MAX_COIL_NODES}")
+    return value
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -48,10 +70,33 @@ def _parser() -> argparse.ArgumentParser:
         "1 for whole degrees)")
     add("--sensor-rate-hz", metavar="HZ", type=number_in(0.0, math.inf, "Hz", low_open=True), default=DEFAULTS.sensor_rate_hz,
         help=f"temperature sensor update rate, Hz; held between updates (default: {DEFAULTS.sensor_rate_hz:g})")
-    add("--arw-dpsh", metavar="DPSH", type=number_in(0.0, 10.0, "deg/sqrt(h)"), default=DEFAULTS.arw_dpsh,
-        help=f"angle random walk, deg/sqrt(h) (default: {DEFAULTS.arw_dpsh:g})")
-    add("--bias-instability-dph", metavar="DPH", type=number_in(0.0, 100.0, "deg/h"), default=DEFAULTS.bias_instability_dph,
-        help=f"bias instability, deg/h (default: {DEFAULTS.bias_instability_dph:g})")
+    add("--sensor-tau-s", metavar="S", type=positive_s, default=DEFAULTS.sensor_tau_s,
+        help=f"temperature sensor's lag behind the part it is mounted on, s (default: {DEFAULTS.sensor_tau_s:g})")
+    add("--sensor-on", choices=SENSOR_MOUNTS, default=DEFAULTS.sensor_on,
+        help=f"where the sensor is mounted: {' or '.join(SENSOR_MOUNTS)}, a plate between the chamber air and "
+        f"the housing (default: {DEFAULTS.sensor_on})")
+    add("--baseplate-tau-s", metavar="S", type=positive_s, default=None,
+        help=f"baseplate's lag behind the air, s; with --sensor-on baseplate (default: {DEFAULTS.baseplate_tau_s:g})")
+    add("--housing-tau-s", metavar="S", type=positive_s, default=DEFAULTS.housing_tau_s,
+        help=f"housing's lag behind the air (or the baseplate), s (default: {DEFAULTS.housing_tau_s:g})")
+    add("--thermal", choices=THERMAL_STRUCTURES, default=DEFAULTS.thermal,
+        help="the coil's thermal structure: lumped (an outer and an inner layer, each lagging the one outside) "
+        f"or diffusive (a chain of layers exchanging heat with their neighbours) (default: {DEFAULTS.thermal})")
+    add("--coil-nodes", metavar="N", type=coil_nodes, default=None,
+        help=f"layers in the diffusive coil, 2..{MAX_COIL_NODES}; with --thermal diffusive "
+        f"(default: {DEFAULTS.coil_nodes})")
+    presets = "; ".join(f"{name}: ARW {values['arw_dpsh']:g} deg/sqrt(h), bias instability "
+                        f"{values['bias_instability_dph']:g} deg/h" for name, values in NOISE_PRESETS.items())
+    add("--noise", choices=NOISE_PRESETS, default=None,
+        help=f"gyro noise grade ({presets}); --arw-dpsh and --bias-instability-dph override it "
+        "(default: tactical)")
+    add("--arw-dpsh", metavar="DPSH", type=number_in(0.0, 10.0, "deg/sqrt(h)"), default=None,
+        help=f"angle random walk, deg/sqrt(h) (default: {DEFAULTS.arw_dpsh:g}, or the --noise grade's)")
+    add("--bias-instability-dph", metavar="DPH", type=number_in(0.0, 100.0, "deg/h"), default=None,
+        help=f"bias instability, deg/h (default: {DEFAULTS.bias_instability_dph:g}, or the --noise grade's)")
+    add("--turn-on-bias-dph", metavar="DPH", type=number_in(0.0, 100.0, "deg/h"), default=DEFAULTS.turn_on_bias_dph,
+        help="std of the turn-on bias, a constant drawn once per run (per seed), deg/h "
+        f"(default: {DEFAULTS.turn_on_bias_dph:g})")
     add("--latitude-deg", metavar="DEG", type=number_in(-90.0, 90.0, "deg"), default=DEFAULTS.latitude_deg,
         help=f"latitude for the Earth rate on the vertical sensing axis, deg (default: {DEFAULTS.latitude_deg:g})")
     add("--no-noise", action="store_true",
@@ -78,14 +123,8 @@ def _run(args: argparse.Namespace) -> int:
     missing = [option for option, value in (("--profile", args.profile), ("-o/--output", args.output)) if not value]
     if missing:
         raise UsageError(f"missing {' and '.join(missing)} (see {PROG} --help)")
+    params = _params(args)
     profile = profiles.resolve(args.profile)
-    params = SimParams(
-        sensor_resolution_c=args.sensor_resolution_c,
-        sensor_rate_hz=args.sensor_rate_hz,
-        arw_dpsh=args.arw_dpsh,
-        bias_instability_dph=args.bias_instability_dph,
-        latitude_deg=args.latitude_deg,
-    )
     if args.no_noise:
         params = params.without_noise()
     started = time.perf_counter()
@@ -107,13 +146,41 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _params(args: argparse.Namespace) -> SimParams:
+    """SimParams from the options; an option that the chosen structure or mount would ignore is refused."""
+    if args.coil_nodes is not None and args.thermal != "diffusive":
+        raise UsageError(f"--coil-nodes applies to --thermal diffusive only (see {PROG} --help)")
+    if args.baseplate_tau_s is not None and args.sensor_on != "baseplate":
+        raise UsageError(f"--baseplate-tau-s applies to --sensor-on baseplate only (see {PROG} --help)")
+    given = {
+        "arw_dpsh": args.arw_dpsh,
+        "bias_instability_dph": args.bias_instability_dph,
+        "coil_nodes": args.coil_nodes,
+        "baseplate_tau_s": args.baseplate_tau_s,
+    }
+    return params_for(
+        args.noise or "tactical",
+        args.thermal,
+        sensor_resolution_c=args.sensor_resolution_c,
+        sensor_rate_hz=args.sensor_rate_hz,
+        sensor_tau_s=args.sensor_tau_s,
+        sensor_on=args.sensor_on,
+        housing_tau_s=args.housing_tau_s,
+        turn_on_bias_dph=args.turn_on_bias_dph,
+        latitude_deg=args.latitude_deg,
+        **{name: value for name, value in given.items() if value is not None},
+    )
+
+
 def _write(path: str, run: Simulation) -> None:
     params = run.params
     comments = [
         f"fogd-sim run: profile {run.profile.name} ({run.profile.describe()})",
         f"seed {run.seed}, rate {run.rate_hz:g} Hz, duration {run.profile.duration_s:g} s",
-        f"sensor: housing temperature, lag {params.sensor_tau_s:g} s, {params.sensor_rate_hz:g} Hz, "
-        f"resolution {params.sensor_resolution_c:g} C, noise {params.sensor_noise_c:g} C",
+        f"thermal: {_structure(params)}; housing lag {params.housing_tau_s:g} s",
+        f"sensor: {params.sensor_on} temperature, lag {params.sensor_tau_s:g} s, {params.sensor_rate_hz:g} Hz, "
+        f"resolution {params.sensor_resolution_c:g} C, noise {params.sensor_noise_c:g} C"
+        + (f", baseplate lag {params.baseplate_tau_s:g} s" if params.sensor_on == "baseplate" else ""),
         f"noise: ARW {params.arw_dpsh:g} deg/sqrt(h), bias instability {params.bias_instability_dph:g} deg/h, "
         f"turn-on bias {run.turn_on_bias_dph:+.6f} deg/h, Earth rate {run.earth_rate_dph:.6f} deg/h "
         f"(latitude {params.latitude_deg:g} deg)",
@@ -156,6 +223,14 @@ class _Column:
     def __getitem__(self, rows: slice) -> np.ndarray:
         start, stop, _ = rows.indices(len(self))
         return self.blocks.get(self.name, start, stop)
+
+
+def _structure(params: SimParams) -> str:
+    if params.thermal == "lumped":
+        return (f"lumped coil, outer layer lag {params.coil_outer_tau_s:g} s, inner layer lag "
+                f"{params.coil_inner_tau_s:g} s")
+    return (f"diffusive coil, {params.coil_nodes} layers, outermost lag {params.coil_outer_tau_s:g} s, innermost "
+            f"{params.coil_diffusion_tau_s:g} s behind it")
 
 
 def _decimals(resolution_c: float) -> int:
