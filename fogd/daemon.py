@@ -30,7 +30,7 @@ import numpy as np
 from fogd.compensator import Compensator
 from fogd.errors import FogdError
 from fogd.estimator import SCALAR_CHUNK
-from fogd.flags import describe
+from fogd.flags import Flag, describe
 from fogd.frozen import FrozenModel
 from fogd.outputs import Formatter, OutputBatch, Writer, rate_row_indices
 from fogd.reader import Reader
@@ -49,6 +49,7 @@ RESTART_DELAY_S = 0.5
 NOTIFY_STATUS_S = 2.0  # how often systemd's STATUS= line is refreshed
 STATS_EVERY_S = 1.0
 READER_STALL_S = 2.0  # a reader that has not come round its loop for this long is hung (its waits are <= 0.2 s)
+_OUT_OF_DOMAIN, _CLAMPED = int(Flag.OUT_OF_DOMAIN), int(Flag.CLAMPED)
 
 
 class TemperatureHold:
@@ -103,6 +104,8 @@ class SampleClock:
 @dataclass
 class LoopCounters:
     samples_compensated: int = 0
+    samples_out_of_domain: int = 0  # compensated by the domain guard's linear fallback (OUT_OF_DOMAIN)
+    samples_clamped: int = 0  # with an input clamped to the calibrated range (CLAMPED)
     reader_deaths: int = 0
     writer_deaths: int = 0
     reloads: int = 0
@@ -321,6 +324,7 @@ class Daemon:
             rates, temp_c[rows], rate_valid=usable, temp_stale=temp_age_s[rows] > self.temp_stale_s
         )
         self.counters.samples_compensated += rows.size
+        self._count_domain(comp.flags)
         if len(records):
             latency_s = time.monotonic() - float(records["t_rx_s"][0])  # the oldest record waited longest
             self.latency.last_s = latency_s
@@ -332,6 +336,25 @@ class Daemon:
                 float(comp.temp_c[last]), float(comp.temp_rate_cps[last]), int(comp.flags[last]),
             )  # fmt: skip
         return OutputBatch(records, rows, self.clock.times(records["t_dev_s"][rows]), comp)
+
+    def _count_domain(self, flags: np.ndarray) -> None:
+        """Running counts of the samples flagged OUT_OF_DOMAIN and CLAMPED."""
+        if flags.size <= SCALAR_CHUNK:  # a frame or two: Python ints cost less than two numpy calls
+            values = [value for value in flags.tolist() if value & (_OUT_OF_DOMAIN | _CLAMPED)]
+            self.counters.samples_out_of_domain += sum(1 for value in values if value & _OUT_OF_DOMAIN)
+            self.counters.samples_clamped += sum(1 for value in values if value & _CLAMPED)
+        else:
+            self.counters.samples_out_of_domain += int(np.count_nonzero(flags & _OUT_OF_DOMAIN))
+            self.counters.samples_clamped += int(np.count_nonzero(flags & _CLAMPED))
+
+    def domain_shares(self) -> dict[str, float]:
+        """Fractions of the samples compensated since start that took the fallback, or were clamped (NaN
+        before the first sample)."""
+        total = self.counters.samples_compensated
+        if not total:
+            return {"out_of_domain": float("nan"), "clamped": float("nan")}
+        counters = self.counters
+        return {"out_of_domain": counters.samples_out_of_domain / total, "clamped": counters.samples_clamped / total}
 
     def _watch_threads(self) -> None:
         """A dead thread is a bug; log it, count it and start it again rather than hang silently."""
@@ -358,7 +381,7 @@ class Daemon:
             f"ring overruns {self.ring.overruns} | reconnects {reader.reconnects} | "
             f"latency {1e3 * self.latency.last_s:.1f} ms (max {1e3 * self.latency.max_s:.1f}) | "
             f"T {latest.temp_c:.2f} C dT/dt {latest.temp_rate_cps:+.5f} C/s comp {latest.comp_dph:+.4f} deg/h "
-            f"({describe(latest.flags)}) | model {self.model.name}"
+            f"({describe(latest.flags)}) | {_shares_text(self.domain_shares())} | model {self.model.name}"
         )
 
     def short_status(self) -> str:
@@ -384,6 +407,7 @@ class Daemon:
             "latest": asdict(self.latest),
             "latency_s": {"last": self.latency.last_s, "max_since_status": self.latency.max_s},
             "counters": self.counters_dict(),
+            "domain_shares": self.domain_shares(),
             "status": self.status_line(),
         }
 
@@ -396,3 +420,11 @@ class Daemon:
             "writer": asdict(self.writer.counters),
             "loop": asdict(self.counters),
         }
+
+
+def _shares_text(shares: dict[str, float]) -> str:
+    """'fallback 0.4 % clamped 1.2 %' (no share before the first sample)."""
+    fallback, clamped = shares["out_of_domain"], shares["clamped"]
+    if fallback != fallback:
+        return "fallback - clamped -"
+    return f"fallback {100.0 * fallback:.1f} % clamped {100.0 * clamped:.1f} %"

@@ -42,6 +42,13 @@ def render(snapshot: dict[str, Any]) -> str:
            [("", counters["ring_overruns"])])
     metric("fogd_port_disconnects_total", "counter", "Times the port was lost.", [("", reader["disconnects"])])
     metric("fogd_samples_compensated_total", "counter", "Rate samples compensated.", [("", loop["samples_compensated"])])
+    metric("fogd_samples_flagged_total", "counter",
+           "Rate samples compensated by the domain guard's linear fallback (out_of_domain) or with an input "
+           "clamped to the calibrated range (clamped).",
+           [('{flag="out_of_domain"}', loop["samples_out_of_domain"]), ('{flag="clamped"}', loop["samples_clamped"])])
+    shares = snapshot["domain_shares"]
+    metric("fogd_samples_flagged_share", "gauge", "Share of the rate samples compensated since start with that flag.",
+           [(f'{{flag="{name}"}}', shares[name]) for name in ("out_of_domain", "clamped")])
     metric("fogd_reloads_total", "counter", "Reloads applied (SIGHUP).", [("", loop["reloads"])])
     metric("fogd_connected", "gauge", "1 while the port is open.", [("", int(bool(snapshot["connected"])))])
     latest = snapshot["latest"]

@@ -2,7 +2,8 @@
 socket the test owns; SIGTERM within 2 s; SIGHUP swaps the model between batches with no frame lost (a bad
 model refused, the old one kept); SIGUSR1 logs the counters; the stats file, `fogd --status` and the metrics
 endpoint; 20 unplug/replug cycles survived; a hung reader withholds the watchdog; a pickle model refused
-without running it; bytes sent before the port is opened are kept."""
+without running it; bytes sent before the port is opened are kept; the running shares of samples that took the
+domain guard's fallback or were clamped, in the status line, the snapshot and the metrics."""
 
 from __future__ import annotations
 
@@ -270,3 +271,49 @@ def test_pickle_model_is_refused_without_running_it(tmp_path):
     lines = result.stderr.strip().splitlines()
     assert result.returncode == 65 and len(lines) == 1 and "pickle" in lines[0], result.stderr
     assert not marker.exists()
+
+
+def test_shares_of_fallback_and_clamping_in_status_stats_and_metrics(tmp_path):
+    """Running counts of OUT_OF_DOMAIN and CLAMPED samples, frame by frame and in one large batch, equal the
+    flags the compensator returned; the status line, the snapshot and the metrics carry them."""
+    from fogd.metrics_http import render
+    from fogd.ring import KIND_IMU, SAMPLE_DTYPE
+
+    doc = modelfile.document(
+        name="guarded", method="linear", inputs=default_inputs(EstimatorSettings(window_s=0.5, average_s=0.05)),
+        x_mean=np.zeros(2), x_scale=np.array([1.0, 0.01]), y_mean=0.0, y_scale=1.0,
+        domain_min=np.array([-40.0, -10.0]), domain_max=np.array([24.0, 10.0]),  # clamped above 24 C
+        params={"coef": [0.05, 30.0], "intercept": 0.5}, reference_dph=0.0, training={}, metrics={},
+        created_utc="2024-01-01T00:00:00Z",
+        domain_guard={"points": [[t, 0.0] for t in np.linspace(15.0, 30.0, 31)], "threshold": 0.5,
+                      "fallback": {"method": "linear", "params": {"coef": [0.05, 0.0], "intercept": 0.5}}},
+    )  # fmt: skip
+    (tmp_path / "ttyNONE").touch()
+    daemon = Daemon(reader=Reader(PortOpener(str(tmp_path / "ttyNONE"), 921600), Lexer(get("kvh-a")), Ring(1024)),
+                    writer=Writer(open_sink(os.devnull, 921600)), formatter=Formatter("csv", get("kvh-a"), 2),
+                    model=modelfile.from_document(doc), rate_hz=RATE_HZ, axis=2, temp_stale_s=2.0,
+                    status_interval_s=60.0)  # fmt: skip
+    assert "| fallback - clamped - |" in daemon.status_line()
+    samples = 2000
+    records = np.zeros(samples, dtype=SAMPLE_DTYPE)
+    records["kind"], records["axis_valid"], records["axis_present"], records["has_temp"] = KIND_IMU, 7, 7, True
+    records["t_dev_s"], records["t_rx_s"] = np.nan, time.monotonic()
+    # steady at 20 C, then a ramp of 5 C/s (far from the guard's points, which have no rate) up past 24 C
+    records["temp_c"] = np.r_[np.full(800, 20.0), np.linspace(20.0, 26.0, 1200)]
+    one_by_one = [daemon.compensate(records[i : i + 1]).comp.flags for i in range(1800)]
+    flags = np.concatenate([*one_by_one, daemon.compensate(records[1800:]).comp.flags]).astype(int)
+    out_of_domain, clamped = int(((flags & 32) != 0).sum()), int(((flags & 2) != 0).sum())
+    assert 0 < out_of_domain < samples and 0 < clamped < samples
+    for part in (flags[:1800], flags[1800:]):  # both flags seen by the per-frame path and the batch path
+        assert ((part & 32) != 0).any() and ((part & 2) != 0).any()
+    loop = daemon.counters
+    assert (loop.samples_compensated, loop.samples_out_of_domain, loop.samples_clamped) == (samples, out_of_domain, clamped)
+    shares = f"fallback {100 * (out_of_domain / samples):.1f} % clamped {100 * (clamped / samples):.1f} %"
+    assert f"| {shares} | model guarded" in daemon.status_line()
+    snapshot = daemon.snapshot()
+    assert snapshot["domain_shares"] == {"out_of_domain": out_of_domain / samples, "clamped": clamped / samples}
+    assert snapshot["counters"]["loop"]["samples_clamped"] == clamped
+    metrics = render(snapshot)
+    assert f'fogd_samples_flagged_total{{flag="out_of_domain"}} {float(out_of_domain)!r}' in metrics
+    assert f'fogd_samples_flagged_total{{flag="clamped"}} {float(clamped)!r}' in metrics
+    assert f'fogd_samples_flagged_share{{flag="clamped"}} {clamped / samples!r}' in metrics
