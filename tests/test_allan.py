@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from fogd.allan import allan_deviation, analyse, octave_taus, summary_lines
+from fogd.allan import allan_deviation, analyse, octave_taus, plot, summary_lines
 
 
 @pytest.mark.parametrize("seed, rate_hz, arw_dpsh", [(1, 100.0, 0.005), (2, 200.0, 0.002), (3, 10.0, 0.05)])
@@ -62,13 +62,15 @@ def test_gauss_markov_bias_has_its_floor_inside_the_curve():
     assert result.tau_s[0] < result.bias_instability_tau_s < result.tau_s[-1]
 
 
-def test_white_noise_only_is_still_falling_so_bias_instability_is_not_reached():
+def test_white_noise_only_is_still_falling_so_bias_instability_is_not_reached(tmp_path):
     result = analyse(np.random.default_rng(3).normal(0.0, 1.0, 200_000), 10.0)
     assert result.bias_instability_dph is None
     assert result.bias_instability_tau_s == result.tau_s[-1] == 1638.4
     lines = summary_lines({"white": result, "also white": result})
     assert "not reached" in lines[1] and "not reached" in lines[2]
     assert lines[3:] == ["bias instability: not reached (curve still falling at tau = 1638 s) for white, also white"]
+    plot(str(tmp_path / "adev.png"), {"white": result}, "white noise")  # the legend says 'BI not reached'
+    assert (tmp_path / "adev.png").read_bytes()[:4] == b"\x89PNG"
 
 
 def gauss_markov(noise: np.ndarray, phi: float) -> np.ndarray:
