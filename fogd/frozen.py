@@ -175,25 +175,30 @@ class RbfNetwork:
 
 @dataclass(frozen=True)
 class Svr:
-    """g(x) = trend_coef . x + sum_i dual_coef_i exp(-gamma ||x - sv_i||^2) + intercept (paper eq. 12-13,
-    gamma = 1/(2 sigma^2); the linear trend is zero for the paper's plain SVR)."""
+    """g(x) = trend(x) + sum_i dual_coef_i exp(-gamma ||x - sv_i||^2) + intercept (paper eq. 12-13,
+    gamma = 1/(2 sigma^2)). The trend is trend_coef . x, or over the monomials `trend_powers` of x when given
+    (fogd's polynomial trend); it is zero for the paper's plain SVR."""
 
     support_vectors: np.ndarray
     dual_coef: np.ndarray
     gamma: float
     trend_coef: np.ndarray
     intercept: float
+    trend_powers: np.ndarray | None = None
 
     def __call__(self, xs: np.ndarray) -> np.ndarray:
         kernel = _gaussian_sum(xs, self.support_vectors, self.dual_coef, self.gamma)
-        return _row_dot(xs, self.trend_coef) + kernel + self.intercept
+        terms = xs if self.trend_powers is None else monomials(xs, self.trend_powers)
+        return _row_dot(terms, self.trend_coef) + kernel + self.intercept
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "_point", _GaussianPoint(self.support_vectors, self.dual_coef, self.gamma))
-        object.__setattr__(self, "_trend", _floats(self.trend_coef))
+        trend = (Linear(self.trend_coef, 0.0) if self.trend_powers is None
+                 else Polynomial(self.trend_powers, self.trend_coef, 0.0))  # fmt: skip
+        object.__setattr__(self, "_trend_point", trend.point)
 
     def point(self, xs: Sequence[float]) -> float:
-        return _point_dot(xs, self._trend) + self._point(xs) + self.intercept
+        return self._trend_point(xs) + self._point(xs) + self.intercept
 
 
 Evaluator = Callable[[np.ndarray], np.ndarray]
@@ -300,10 +305,12 @@ def build_evaluator(method: str, params: dict) -> Evaluator:
     if method == "rbf-nn":
         return RbfNetwork(array("centres"), float(params["width"]), array("coef"), float(params["intercept"]))
     if method == "pso-svr":
-        trend_coef = array("trend_coef")
+        powers = params.get("trend_powers")
+        powers = None if powers is None else np.asarray(powers, dtype=np.int64)
+        inputs = array("trend_coef").size if powers is None else powers.shape[1]
         return Svr(
-            array("support_vectors").reshape(-1, trend_coef.size),  # none at all when the trend explains everything
-            array("dual_coef"), float(params["gamma"]), trend_coef,
-            float(params["intercept"]),
+            array("support_vectors").reshape(-1, inputs),  # none at all when the trend explains everything
+            array("dual_coef"), float(params["gamma"]), array("trend_coef"),
+            float(params["intercept"]), powers,
         )  # fmt: skip
     raise ValueError(f"unknown method {method!r}")

@@ -27,8 +27,10 @@ KINDS = (TEMP, TEMP_RATE, TEMP_LAG)
 INPUTS_SYNTAX = (
     "comma-separated inputs: 'temp' (temperature, C), 'rate@W' (eq. 16 temperature rate over a W s window, "
     "with --average-s and --step-s), 'lag@TAU' (temperature through a first-order lag of time constant TAU s, a "
-    "stand-in for the coil temperature); e.g. temp,rate@50,rate@300,lag@600"
+    "stand-in for the coil temperature), 'lags@TAU,TAU,...' or 'lags@FIRST..LAST/COUNT' (a bank of such lags, "
+    "the range log-spaced); e.g. temp,rate@50,rate@300,lag@600 or lags@30..10000/6"
 )
+MAX_INPUTS = 16
 
 
 @dataclass(frozen=True)
@@ -77,34 +79,83 @@ class InputSpec:
 
 
 def parse_inputs(text: str, average_s: float = 0.5, step_s: float = 0.0) -> tuple[InputSpec, ...]:
-    """Inputs from the `--inputs` syntax (INPUTS_SYNTAX); raises ValueError naming the bad item."""
+    """Inputs from the `--inputs` syntax (INPUTS_SYNTAX); raises ValueError naming the bad item.
+
+    A lag bank (`lags@...`) is the same as its lags given one by one: each is an ordinary `temp_lag_c` input,
+    so the model file and the streaming code need nothing new; a bank's later time constants are the bare
+    numbers that follow it (`lags@300,1000,3000`)."""
     specs: list[InputSpec] = []
+    in_bank = False
     for item in (part.strip() for part in text.split(",")):
         name, _, value = item.partition("@")
         try:
-            if name == "temp" and not value:
-                spec = InputSpec(TEMP)
-            elif name == "rate" and value:
-                spec = InputSpec(TEMP_RATE, EstimatorSettings(float(value), average_s, step_s))
-                if not 2 * average_s <= spec.estimator.window_s <= 86400:
-                    raise ValueError(f"window must be from 2 * average_s ({2 * average_s:g} s) to 86400 s")
-            elif name == "lag" and value:
-                spec = InputSpec(TEMP_LAG, tau_s=float(value))
+            if in_bank and not value and _is_number(name):
+                new = [InputSpec(TEMP_LAG, tau_s=float(name))]
+            elif name == "lags" and value:
+                new = [InputSpec(TEMP_LAG, tau_s=tau_s) for tau_s in _bank_taus(value)]
             else:
-                raise ValueError("expected temp, rate@SECONDS or lag@SECONDS")
+                new = [_single(name, value, average_s, step_s)]
         except ValueError as error:
             raise ValueError(f"--inputs item {item!r}: {error}") from None
-        if spec in specs:
-            raise ValueError(f"--inputs item {item!r} is given twice")
-        specs.append(spec)
-    if not 1 <= len(specs) <= 16:
-        raise ValueError("--inputs needs 1 to 16 inputs")
+        in_bank = name == "lags" or (in_bank and not value and _is_number(name))
+        for spec in new:
+            if spec in specs:
+                raise ValueError(f"--inputs item {item!r} gives {spec.short} twice")
+            specs.append(spec)
+    if not 1 <= len(specs) <= MAX_INPUTS:
+        raise ValueError(f"--inputs needs 1 to {MAX_INPUTS} inputs (a lag bank counts each of its lags)")
     return tuple(specs)
 
 
+def _single(name: str, value: str, average_s: float, step_s: float) -> InputSpec:
+    if name == "temp" and not value:
+        return InputSpec(TEMP)
+    if name == "rate" and value:
+        spec = InputSpec(TEMP_RATE, EstimatorSettings(float(value), average_s, step_s))
+        if not 2 * average_s <= spec.estimator.window_s <= 86400:
+            raise ValueError(f"window must be from 2 * average_s ({2 * average_s:g} s) to 86400 s")
+        return spec
+    if name == "lag" and value:
+        return InputSpec(TEMP_LAG, tau_s=float(value))
+    raise ValueError("expected temp, rate@SECONDS, lag@SECONDS or lags@SECONDS,SECONDS,... / lags@FIRST..LAST/COUNT")
+
+
+def _bank_taus(value: str) -> list[float]:
+    """`FIRST..LAST/COUNT` as COUNT log-spaced time constants (rounded to 3 significant digits), or one."""
+    if ".." not in value:
+        return [float(value)]
+    bounds, _, count_text = value.partition("/")
+    first_text, _, last_text = bounds.partition("..")
+    first, last = float(first_text), float(last_text)
+    count = int(count_text) if count_text else 0
+    if not (0 < first < last) or count < 2:
+        raise ValueError("a lag range is FIRST..LAST/COUNT with 0 < FIRST < LAST and COUNT >= 2, e.g. 30..10000/6")
+    return [float(f"{tau_s:.3g}") for tau_s in np.geomspace(first, last, count)]
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def describe_inputs(specs: tuple[InputSpec, ...]) -> str:
-    """The `--inputs` spelling of a whole input set."""
-    return ",".join(spec.short for spec in specs)
+    """The `--inputs` spelling of a whole input set (two or more lags in a row as one `lags@` bank)."""
+    parts: list[str] = []
+    index = 0
+    while index < len(specs):
+        end = index
+        while end < len(specs) and specs[end].kind == TEMP_LAG:
+            end += 1
+        if end - index >= 2:
+            parts.append("lags@" + ",".join(f"{spec.tau_s:g}" for spec in specs[index:end]))
+            index = end
+        else:
+            parts.append(specs[index].short)
+            index += 1
+    return ",".join(parts)
 
 
 def default_inputs(estimator: EstimatorSettings | None = None) -> tuple[InputSpec, ...]:
@@ -115,6 +166,22 @@ def default_inputs(estimator: EstimatorSettings | None = None) -> tuple[InputSpe
 def temperature_columns(specs: tuple[InputSpec, ...]) -> tuple[int, ...]:
     """The inputs that are temperatures (the sensor's, or lagged), as opposed to temperature rates."""
     return tuple(i for i, spec in enumerate(specs) if spec.kind in (TEMP, TEMP_LAG))
+
+
+STATIC_MAX_TAU_S = 1000.0  # temperatures that follow the coil: the sensor's and lags up to this time constant
+DEFAULT_INPUTS_TEXT = "lags@30..10000/6"  # fogd-train's default: a bank of lags spanning the thermal range
+
+
+def static_columns(specs: tuple[InputSpec, ...], max_tau_s: float = STATIC_MAX_TAU_S) -> tuple[int, ...]:
+    """The temperature inputs close enough to the coil's temperature to carry its static nonlinearity: the
+    sensor's own and lags up to `max_tau_s` (slower lags stand for the long memory of the housing); if there
+    is none, the fastest lag."""
+    columns = tuple(i for i, spec in enumerate(specs)
+                    if spec.kind == TEMP or (spec.kind == TEMP_LAG and spec.tau_s <= max_tau_s))  # fmt: skip
+    if columns:
+        return columns
+    lags = [i for i, spec in enumerate(specs) if spec.kind == TEMP_LAG]
+    return (min(lags, key=lambda i: specs[i].tau_s),) if lags else ()
 
 
 def warmup_samples(specs: tuple[InputSpec, ...], rate_hz: float) -> int:

@@ -4,7 +4,9 @@ A model file is data from outside. Loading reads at most `MAX_MODEL_BYTES`, refu
 files by their first bytes, parses strict JSON (no NaN; deep nesting refused), accepts exactly the keys below and
 checks every array's shape and finiteness; anything else is a `ModelFileError` with a one-line message.
 
-Version 1 grew compatibly (files written before still load; older fogd refuses the new parts by name):
+Version 2 adds an optional `trend_powers` to pso-svr's params (the monomials of a polynomial trend under the
+SVR; without it the trend is linear, as in version 1). Version-1 files still load. Version 1 had grown
+compatibly (files written before still load; older fogd refuses the new parts by name):
 inputs may be `temp_lag_c` (with `tau_s`) and several `temp_rate_cps` windows, and an optional top-level
 `domain_guard` holds the joint-space guard of fogd.domain: `points` (calibration block rows in scaled units),
 `threshold` (scaled distance) and `fallback` (`{"method": "linear", "params": {"coef", "intercept"}}`, in the
@@ -29,7 +31,8 @@ from fogd.inputs import KINDS, TEMP_LAG, TEMP_RATE, InputSpec
 from fogd.lag import MAX_TAU_S
 
 MODEL_FORMAT = "fogd-model"
-MODEL_VERSION = 1
+MODEL_VERSION = 2
+READABLE_VERSIONS = (1, 2)
 MAX_MODEL_BYTES = 32 * 1024 * 1024
 MAX_ROWS = 100_000  # support vectors, centres or polynomial terms
 _FLOAT_MAX = sys.float_info.max
@@ -46,6 +49,7 @@ PARAM_KEYS = {
     "rbf-nn": {"centres", "width", "coef", "intercept"},
     "pso-svr": {"support_vectors", "dual_coef", "gamma", "trend_coef", "intercept"},
 }
+OPTIONAL_PARAM_KEYS = {"pso-svr": {"trend_powers"}}  # version 2: a polynomial trend under the SVR
 _BINARY_MAGIC = {
     b"\x80": "a Python pickle",
     b"PK": "a zip archive (numpy .npz or joblib?)",
@@ -143,8 +147,8 @@ def from_document(doc: Any, *, source: str = "model") -> FrozenModel:
     if doc["format"] != MODEL_FORMAT:
         check.fail("format", f"is {str(doc['format'])[:40]!r}, expected {MODEL_FORMAT!r}")
     version = check.integer(doc["version"], "version")
-    if version != MODEL_VERSION:
-        check.fail("version", f"is {version}; this fogd reads version {MODEL_VERSION} (re-train, or upgrade fogd)")
+    if version not in READABLE_VERSIONS:
+        check.fail("version", f"is {version}; this fogd reads versions {', '.join(map(str, READABLE_VERSIONS))} (re-train, or upgrade fogd)")
     name = check.string(doc["name"], "name")
     method = check.string(doc["method"], "method")
     if method not in METHODS:
@@ -299,15 +303,12 @@ class _Checker:
         return DomainGuard(points, threshold, x_mean, x_scale, model)
 
     def params(self, value: Any, method: str, d: int) -> dict[str, Any]:
-        self.mapping(value, "params", PARAM_KEYS[method])
+        self.mapping(value, "params", PARAM_KEYS[method], optional=OPTIONAL_PARAM_KEYS.get(method, set()))
         out: dict[str, Any] = {"intercept": self.number(value["intercept"], "params.intercept")}
         if method == "linear":
             out["coef"] = self.vector(value["coef"], "params.coef", d)
         elif method == "ls-poly":
-            powers = self.matrix(value["powers"], "params.powers", d)
-            if np.any(powers != np.round(powers)) or np.any(powers < 0) or np.any(powers > 20):
-                self.fail("params.powers", "must hold integers from 0 to 20")
-            out["powers"] = powers.astype(np.int64)
+            out["powers"] = powers = self._powers(value["powers"], "params.powers", d)
             out["coef"] = self.vector(value["coef"], "params.coef", len(powers))
         elif method == "rbf-nn":
             out["centres"] = self.matrix(value["centres"], "params.centres", d)
@@ -318,8 +319,18 @@ class _Checker:
             out["support_vectors"] = self.matrix(value["support_vectors"], "params.support_vectors", d, allow_empty=True)
             out["dual_coef"] = self.vector(value["dual_coef"], "params.dual_coef", len(out["support_vectors"]))
             out["gamma"] = self.number(value["gamma"], "params.gamma", positive=True)
-            out["trend_coef"] = self.vector(value["trend_coef"], "params.trend_coef", d)
+            if "trend_powers" in value:
+                out["trend_powers"] = self._powers(value["trend_powers"], "params.trend_powers", d)
+                out["trend_coef"] = self.vector(value["trend_coef"], "params.trend_coef", len(out["trend_powers"]))
+            else:
+                out["trend_coef"] = self.vector(value["trend_coef"], "params.trend_coef", d)
         return out
+
+    def _powers(self, value: Any, where: str, d: int) -> np.ndarray:
+        powers = self.matrix(value, where, d)
+        if np.any(powers != np.round(powers)) or np.any(powers < 0) or np.any(powers > 20):
+            self.fail(where, "must hold integers from 0 to 20")
+        return powers.astype(np.int64)
 
 
 def _floats(values: np.ndarray) -> list[float]:

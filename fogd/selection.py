@@ -33,13 +33,14 @@ import numpy as np
 
 from fogd.errors import InputError
 from fogd.features import TrainingSet
-from fogd.inputs import InputSpec, describe_inputs, parse_inputs, temperature_columns
+from fogd.inputs import DEFAULT_INPUTS_TEXT, InputSpec, describe_inputs, parse_inputs, static_columns, temperature_columns
 from fogd.models import FitOptions, Fitted, fit, folds
+from fogd.models.folds import drift_rmse
 from fogd.models.least_squares import POLY_TERMS
 from fogd.training import TrainConfig, Trained, prepare, train
 
 FAMILIES = ("linear", "ls-poly", "rbf-nn", "pso-svr")
-DEFAULT_INPUT_SETS = ("temp,rate@50", "temp,rate@50,rate@300", "temp,rate@50,lag@600")
+DEFAULT_INPUT_SETS = ("temp,rate@50", DEFAULT_INPUTS_TEXT)  # the paper's inputs, then fogd's lag bank
 AUTO_PARTICLES = 20
 AUTO_ITERATIONS = 20
 MAX_DEGREE = 5
@@ -81,7 +82,8 @@ def select(runs, config: TrainConfig, sets: list[tuple[InputSpec, ...]], familie
     )
     candidates: list[Candidate] = []
     for specs in sets:
-        options = dataclasses.replace(config.fit, temperature_columns=temperature_columns(specs))
+        options = dataclasses.replace(config.fit, temperature_columns=temperature_columns(specs),
+                                      static_columns=static_columns(specs))
         set_config = dataclasses.replace(config, inputs=specs, fit=options)
         prepared = prepare(runs, set_config, min_warmup_s=common_s)
         data, reference = prepared
@@ -126,7 +128,7 @@ def nested_rmse(method: str, data: TrainingSet, error_dph: np.ndarray, options: 
         x_test = np.clip(data.x[test_rows], x_train.min(axis=0), x_train.max(axis=0))
         predicted = fitted.y_mean + fitted.y_scale * fitted.estimator.predict((x_test - fitted.x_mean) / fitted.x_scale)
         residual[test_rows] = predicted - error_dph[test_rows]
-    return float(np.sqrt(np.mean(residual**2)))
+    return drift_rmse(residual, data.groups)
 
 
 def _tuned(method: str, x: np.ndarray, error_dph: np.ndarray, groups: np.ndarray, options: FitOptions) -> Fitted:

@@ -16,7 +16,7 @@ import numpy as np
 from fogd import domain, modelfile
 from fogd.features import TrainingSet, block_samples, training_set
 from fogd.frozen import FrozenModel
-from fogd.inputs import InputSpec, default_inputs, temperature_columns
+from fogd.inputs import DEFAULT_INPUTS_TEXT, InputSpec, parse_inputs, static_columns, temperature_columns
 from fogd.metrics import ErrorStats
 from fogd.models import FitOptions, Fitted, fit
 from fogd.runio import Run
@@ -27,7 +27,7 @@ class TrainConfig:
     """Everything `fogd-train` decides besides the runs."""
 
     method: str = "pso-svr"
-    inputs: tuple[InputSpec, ...] = field(default_factory=default_inputs)
+    inputs: tuple[InputSpec, ...] = field(default_factory=lambda: parse_inputs(DEFAULT_INPUTS_TEXT))
     block_s: float = 100.0
     reference: str | float = "mean"  # 'mean' of all training blocks, or a rate in deg/h
     fit: FitOptions = field(default_factory=FitOptions)
@@ -67,7 +67,8 @@ def train(runs: list[Run], config: TrainConfig, prepared: tuple[TrainingSet, flo
     """Fit `config.method` to the runs and return the validated model."""
     data, reference = prepared or prepare(runs, config)
     error = data.rate_dph - reference
-    options = dataclasses.replace(config.fit, temperature_columns=temperature_columns(config.inputs))
+    options = dataclasses.replace(config.fit, temperature_columns=temperature_columns(config.inputs),
+                                  static_columns=static_columns(config.inputs))
     fitted = fit(config.method, data.x, error, data.groups, options)
     created = dt.datetime.now(dt.timezone.utc).replace(microsecond=0).isoformat()
     metrics = {

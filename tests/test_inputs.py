@@ -51,9 +51,43 @@ def test_parse_inputs_syntax():
     assert [spec.label for spec in specs] == ["temp_c", "temp_rate_cps@50s", "temp_rate_cps@300s", "temp_lag_c@600s"]
 
 
+def test_lag_bank_is_its_lags_one_by_one():
+    listed = parse_inputs("lags@300,1000,3000,rate@50")
+    assert listed == (*(InputSpec(TEMP_LAG, tau_s=tau) for tau in (300.0, 1000.0, 3000.0)),
+                      InputSpec(TEMP_RATE, EstimatorSettings(50.0, 0.5, 0.0)))  # fmt: skip
+    assert listed[:3] == parse_inputs("lag@300,lag@1000,lag@3000")
+    assert describe_inputs(listed) == "lags@300,1000,3000,rate@50"
+
+
+def test_lag_bank_range_is_log_spaced_and_round_trips():
+    specs = parse_inputs("temp,lags@30..10000/6")
+    taus = [spec.tau_s for spec in specs[1:]]
+    assert taus[0] == 30.0 and taus[-1] == 10000.0 and len(taus) == 6
+    ratios = np.diff(np.log(taus))
+    np.testing.assert_allclose(ratios, ratios.mean(), rtol=1e-2)  # equal steps in log (to 3 digits)
+    assert parse_inputs(describe_inputs(specs)) == specs
+
+
+@settings(max_examples=30, deadline=None)
+@given(steps=st.lists(st.integers(-1, 1), min_size=1, max_size=3000), chunk=st.integers(1, 40))
+def test_whole_degree_lag_bank_streaming_equals_batch(steps, chunk):
+    """A KVH's whole-degree temperature through the default bank: the daemon's chunks give replay's floats."""
+    specs = parse_inputs("lags@30..10000/6")
+    temps = 20.0 + np.cumsum(steps).astype(float)
+    bank = InputBank(specs, RATE_HZ)
+    streamed = np.concatenate([bank.update(temps[i : i + chunk]) for i in range(0, temps.size, chunk)])
+    assert np.array_equal(streamed, inputs_batch(temps, specs, RATE_HZ))
+
+
 @pytest.mark.parametrize(
     "text, message",
     [
+        ("lags@10..5/3", "FIRST..LAST/COUNT"),
+        ("lags@1..50", "FIRST..LAST/COUNT"),
+        ("lags@300,300", "twice"),
+        ("temp,300", "expected temp"),
+        ("lags@1..10000/20", "1 to 16 inputs"),
+        ("lags@1..100000/4", "86400"),
         ("temp,rate", "rate@SECONDS"),
         ("temp,speed@3", "expected temp"),
         ("temp,lag@-5", "time constant"),

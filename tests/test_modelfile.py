@@ -170,7 +170,7 @@ def test_saved_file_is_plain_json(tmp_path):
     path = tmp_path / "m.json"
     modelfile.save(path, make_doc("pso-svr"))
     parsed = json.loads(path.read_text(encoding="utf-8"))
-    assert parsed["format"] == "fogd-model" and parsed["version"] == 1
+    assert parsed["format"] == "fogd-model" and parsed["version"] == 2
     assert parsed["params"] == PARAMS["pso-svr"]
     rate_input = {"kind": "temp_rate_cps", "window_s": 20.0, "average_s": 1.0, "step_s": 0.0}
     assert parsed["inputs"] == [{"kind": "temp_c"}, rate_input]
@@ -349,7 +349,7 @@ def delete_at(doc: dict, dotted: str) -> None:
 BAD_FIELDS = [
     ("linear", "format", "fogd-modle", ["format", "fogd-modle"]),
     ("linear", "format", None, ["format"]),
-    ("linear", "version", 2, ["version", "2"]),
+    ("linear", "version", 3, ["version", "3"]),
     ("linear", "version", 0, ["version"]),
     ("linear", "version", "1", ["version", "integer"]),
     ("linear", "version", True, ["version", "integer"]),

@@ -80,16 +80,34 @@ def test_linear_recovers_known_coefficients() -> None:
     np.testing.assert_allclose(predict_dph(fitted, np.array([[0.0, 0.0]])), [0.3], atol=1e-12)
 
 
-def test_cv_rmse_is_leave_one_run_out() -> None:
+def test_cv_rmse_is_leave_one_run_out_drift_with_run_offsets() -> None:
+    """Each held-out run is predicted by a fit with one offset per training run (dummy columns), and scored by
+    the drift about its own mean."""
     x, y, groups = chamber_rows(80, seed=5, runs=3)
     squared = []
     for run in range(3):
         train, test = groups != run, groups == run
-        design = np.c_[np.ones(train.sum()), x[train]]
-        beta = np.linalg.lstsq(design, y[train], rcond=None)[0]
-        squared.append((np.c_[np.ones(test.sum()), x[test]] @ beta - y[test]) ** 2)
+        dummies = (groups[train][:, None] == np.unique(groups[train])).astype(float)
+        beta = np.linalg.lstsq(np.c_[dummies, x[train]], y[train], rcond=None)[0]
+        residual = x[test] @ beta[dummies.shape[1]:] - y[test]
+        squared.append((residual - residual.mean()) ** 2)
     expected = np.sqrt(np.mean(np.concatenate(squared)))
     assert fit("linear", x, y, groups, QUICK).cv_rmse_dph == pytest.approx(expected, rel=1e-9)
+
+
+def test_run_offsets_do_not_leak_into_temperature_coefficients() -> None:
+    """Two runs over the same temperatures with different turn-on biases: the slope stays the true one (a
+    fit without offsets would tilt it towards the biases' difference)."""
+    rng = np.random.default_rng(8)
+    temp = np.r_[np.linspace(0.0, 30.0, 40), np.linspace(10.0, 40.0, 40)]
+    groups = np.repeat([0, 1], 40)
+    y = 0.01 * temp + np.where(groups == 0, -0.2, 0.2) + rng.normal(0.0, 1e-4, 80)
+    x = np.c_[temp, rng.normal(0.0, 1e-3, 80)]
+    fitted = fit("linear", x, y, groups, QUICK)
+    slope = fitted.params["coef"][0] * fitted.y_scale / fitted.x_scale[0]
+    assert slope == pytest.approx(0.01, rel=1e-2)
+    pooled = np.linalg.lstsq(np.c_[np.ones(80), x], y, rcond=None)[0][1]
+    assert abs(pooled - 0.01) > 0.005  # the leak the offsets prevent
 
 
 def test_folds_leave_one_run_out() -> None:

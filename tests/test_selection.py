@@ -5,6 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from fogd.inputs import default_inputs
 from fogd.models import FitOptions
 from fogd.runio import Run
 from fogd.selection import MARGIN, Candidate, choose, input_sets, nested_rmse, select, table_lines
@@ -62,20 +63,25 @@ def test_nested_score_predicts_each_run_from_the_others_with_clamped_inputs():
     numpy's lstsq, the held-out inputs clamped to the training rows' range as the daemon clamps them."""
     runs = [synthetic_run("up.csv", 1, True), synthetic_run("down.csv", 2, False), synthetic_run("up2.csv", 3, True)]
     runs[2].temp_c[:] = runs[2].temp_c + 5.0  # partly outside the other runs' range: clamping matters
-    config = TrainConfig(block_s=100.0, fit=FitOptions(progress=False), domain_guard=False)
+    config = TrainConfig(inputs=default_inputs(), block_s=100.0, fit=FitOptions(progress=False), domain_guard=False)
     data, reference = prepare(runs, config)
     error = data.rate_dph - reference
-    residual = np.empty_like(error)
-    for run in range(3):
-        train, test = data.groups != run, data.groups == run
-        design = np.c_[np.ones(train.sum()), data.x[train]]
-        coef = np.linalg.lstsq(design, error[train], rcond=None)[0]
-        x_test = np.clip(data.x[test], data.x[train].min(axis=0), data.x[train].max(axis=0))
-        residual[test] = np.c_[np.ones(test.sum()), x_test] @ coef - error[test]
-    expected = np.sqrt(np.mean(residual**2))
+
+    def held_out(clamp: bool) -> float:
+        """Least squares with one offset per training run; drift about each held-out run's own mean."""
+        squared = []
+        for run in range(3):
+            train, test = data.groups != run, data.groups == run
+            dummies = (data.groups[train][:, None] == np.unique(data.groups[train])).astype(float)
+            coef = np.linalg.lstsq(np.c_[dummies, data.x[train]], error[train], rcond=None)[0][dummies.shape[1]:]
+            x_test = data.x[test]
+            if clamp:
+                x_test = np.clip(x_test, data.x[train].min(axis=0), data.x[train].max(axis=0))
+            residual = x_test @ coef - error[test]
+            squared.append((residual - residual.mean()) ** 2)
+        return float(np.sqrt(np.mean(np.concatenate(squared))))
+
+    expected = held_out(clamp=True)
     assert nested_rmse("linear", data, error, config.fit) == pytest.approx(expected, rel=1e-9)
-    unclamped = np.sqrt(np.mean(np.concatenate([
-        np.c_[np.ones((data.groups == run).sum()), data.x[data.groups == run]]
-        @ np.linalg.lstsq(np.c_[np.ones((data.groups != run).sum()), data.x[data.groups != run]], error[data.groups != run], rcond=None)[0]
-        - error[data.groups == run] for run in range(3)]) ** 2))  # fmt: skip
+    unclamped = held_out(clamp=False)
     assert abs(unclamped - expected) > 1e-6 * expected  # the clamp changed something

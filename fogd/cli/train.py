@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+import argparse
 import sys
 from typing import Sequence
 
 from fogd import modelfile
 from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, non_negative_float, positive_float, positive_int, run
-from fogd.errors import UsageError
+from fogd.errors import InputError, UsageError
 from fogd.estimator import EstimatorSettings
-from fogd.inputs import INPUTS_SYNTAX, default_inputs, parse_inputs
+from fogd.inputs import DEFAULT_INPUTS_TEXT, INPUTS_SYNTAX, default_inputs, parse_inputs, warmup_samples
+from fogd.models.folds import drift_rmse
+from fogd.models.svr import TRENDS
+from fogd.runcheck import check_calibration_run
 from fogd.models import FITNESSES, METHODS, FitOptions
 from fogd.models.least_squares import POLY_TERMS
 from fogd.replay import replay, replay_table
@@ -39,7 +43,8 @@ def parser() -> ArgumentParser:
     )  # fmt: skip
     p.add_argument(
         "--inputs", metavar="LIST", default=None,
-        help=f"model inputs (default temp,rate@WINDOW_S): {INPUTS_SYNTAX}",
+        help=f"model inputs (default {DEFAULT_INPUTS_TEXT}, a bank of lags spanning the thermal range; 'paper' is "
+        f"the paper's temp,rate@WINDOW_S): {INPUTS_SYNTAX}",
     )  # fmt: skip
     p.add_argument(
         "--auto-inputs", metavar="LIST", action="append",
@@ -47,9 +52,15 @@ def parser() -> ArgumentParser:
         + " | ".join(DEFAULT_INPUT_SETS) + ")",
     )  # fmt: skip
     p.add_argument(
-        "--no-domain-guard", action="store_true",
-        help="do not store the joint-space domain guard (samples far from every calibration block are then "
-        "not flagged OUT_OF_DOMAIN nor compensated by the linear fallback)",
+        "--domain-guard", action=argparse.BooleanOptionalAction, default=False,
+        help="store the joint-space domain guard: samples far from every calibration block are flagged "
+        "OUT_OF_DOMAIN and compensated by a linear fallback (off by default: the trend under the SVR is what "
+        "a sample outside the calibration data gets, and with a lag bank the guard would refuse ordinary "
+        "temperature histories)",
+    )  # fmt: skip
+    p.add_argument(
+        "--force", action="store_true",
+        help="write the model even when its held-out error exceeds the uncompensated drift",
     )  # fmt: skip
     p.add_argument(
         "--fitness", choices=FITNESSES, default="cv",
@@ -57,8 +68,10 @@ def parser() -> ArgumentParser:
         "train = the paper's RMSE on the training data",
     )  # fmt: skip
     p.add_argument(
-        "--trend", choices=("linear", "none"), default="linear",
-        help="pso-svr: fit the SVR on top of a linear (IEEE 952) trend, or 'none' for the paper's plain SVR",
+        "--trend", choices=TRENDS, default="poly",
+        help="pso-svr: fit the SVR on top of a least-squares trend with one offset per run: 'poly' (every input "
+        "linear plus powers up to 3 of the temperatures that follow the coil: the static nonlinearity), "
+        "'linear' (IEEE 952), or 'none' for the paper's plain SVR",
     )  # fmt: skip
     p.add_argument("--particles", type=positive_int, default=None,
                    help=f"PSO population (default 60 as the paper; {AUTO_PARTICLES} inside --method auto)")
@@ -76,7 +89,7 @@ def parser() -> ArgumentParser:
              "input (temp, lag@) up to --degree and the rate inputs linear, no cross terms (IEEE 952's model with "
              "a polynomial static term)",
     )  # fmt: skip
-    p.add_argument("--window-s", type=positive_float, default=50.0, help="eq. 16 window N, in seconds")
+    p.add_argument("--window-s", type=positive_float, default=50.0, help="eq. 16 window N, in seconds, of --inputs paper")
     p.add_argument("--average-s", type=positive_float, default=0.5, help="eq. 16 averaging window m, in seconds")
     p.add_argument("--step-s", type=non_negative_float, default=0.0, help="eq. 16 step l, in seconds (0: every sample)")
     p.add_argument("--block-s", type=positive_float, default=100.0, help="block length for targets, in seconds")
@@ -108,7 +121,10 @@ def body(argv: Sequence[str] | None) -> int:
     auto = args.method == "auto"
     try:
         estimator = EstimatorSettings(args.window_s, args.average_s, args.step_s)
-        inputs = default_inputs(estimator) if args.inputs is None else parse_inputs(args.inputs, args.average_s, args.step_s)
+        if args.inputs == "paper":
+            inputs = default_inputs(estimator)
+        else:
+            inputs = parse_inputs(args.inputs or DEFAULT_INPUTS_TEXT, estimator.average_s, estimator.step_s)
         sets = input_sets(args.auto_inputs, args.average_s, args.step_s) if auto else [inputs]
         runs = [read_run(path) for path in args.runs]
         for loaded in runs:
@@ -122,18 +138,21 @@ def body(argv: Sequence[str] | None) -> int:
         raise UsageError("--auto-inputs goes with --method auto")
     if auto and args.compare:
         raise UsageError("--compare fits every method on one input set; --method auto already compares them all")
+    for loaded in runs:
+        warmup_s = max(warmup_samples(specs, loaded.rate_hz) for specs in sets) / loaded.rate_hz
+        check_calibration_run(loaded, warmup_s, args.block_s)
     particles = args.particles or (AUTO_PARTICLES if auto else 60)
     iterations = args.iterations or (AUTO_ITERATIONS if auto else 100)
     holdouts = [read_run(path) for path in args.holdout]
     config = TrainConfig(
         method=args.method,
         inputs=inputs,
-        domain_guard=not args.no_domain_guard,
+        domain_guard=args.domain_guard,
         block_s=args.block_s,
         reference=_reference(args.reference),
         fit=FitOptions(
             degree=args.degree, poly_terms=args.poly_terms, particles=particles, iterations=iterations, c1=args.c1, c2=args.c2,
-            fitness=args.fitness, trend=args.trend == "linear", folds=args.folds, n_jobs=args.jobs, seed=args.seed, progress=not args.quiet,
+            fitness=args.fitness, trend=args.trend, folds=args.folds, n_jobs=args.jobs, seed=args.seed, progress=not args.quiet,
         ),  # fmt: skip
         name=args.name,
     )
@@ -153,6 +172,7 @@ def body(argv: Sequence[str] | None) -> int:
               f"{'leave-one-run-out' if len(runs) >= 2 else f'{args.folds} blocked time folds'}")
         print("\n".join(table_lines(candidates, best)))
         print(f"chosen: {best.label} (nested held-out RMSE {best.held_out_rmse_dph:.3e} deg/h)")
+        held_out_dph = best.held_out_rmse_dph
     else:
         prepared = prepare(runs, config)
         methods = list(METHODS) if args.compare else [args.method]
@@ -162,6 +182,7 @@ def body(argv: Sequence[str] | None) -> int:
             trained[method] = train(runs, config, prepared)
         label = args.method
         chosen = trained[args.method]
+        held_out_dph = chosen.fitted.cv_rmse_dph
     for line in _summary(chosen):
         print(line, file=sys.stderr)
     print(f"\nTable 3: fit on the training runs ({len(chosen.error_dph)} blocks of {args.block_s:g} s)")
@@ -171,6 +192,7 @@ def body(argv: Sequence[str] | None) -> int:
         print(f"\nTable 4: {holdout.name}, not used for training (block means about the run mean)")
         print(error_table(_holdout_rows(trained, holdout, args.block_s)))
     if args.output:
+        _never_worse_than_nothing(chosen, held_out_dph, args.force)
         modelfile.save(args.output, chosen.document)
         print(f"\nwrote {args.output} ({label}, {chosen.model.name})", file=sys.stderr)
     if args.report:
@@ -181,11 +203,26 @@ def body(argv: Sequence[str] | None) -> int:
     return 0
 
 
+def _never_worse_than_nothing(trained: Trained, held_out_dph: float | None, force: bool) -> None:
+    """Refuse (InputError, one line) a model whose held-out drift exceeds the drift it is meant to remove."""
+    uncompensated_dph = drift_rmse(trained.error_dph, trained.data.groups)
+    if held_out_dph is None or held_out_dph <= uncompensated_dph:
+        return
+    message = (f"the model's held-out drift ({held_out_dph:.3e} deg/h) exceeds the uncompensated drift "
+               f"({uncompensated_dph:.3e} deg/h): it would make the gyro worse")  # fmt: skip
+    if force:
+        print(f"{PROG}: warning: {message}; written anyway (--force)", file=sys.stderr)
+        return
+    raise InputError(f"{message}; record more or longer runs over the range in use, try --method auto, or "
+                     "--force to write it anyway")
+
+
 def _summary(trained: Trained) -> list[str]:
     hyper = trained.fitted.hyperparameters
     lines = [f"{trained.fitted.method}: " + ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in hyper.items())]
     if trained.fitted.cv_rmse_dph is not None:
-        lines.append(f"held-out (cv) RMSE: {trained.fitted.cv_rmse_dph:.3e} deg/h")
+        lines.append(f"held-out (cv) drift RMSE: {trained.fitted.cv_rmse_dph:.3e} deg/h (about each run's mean), "
+                     f"uncompensated {drift_rmse(trained.error_dph, trained.data.groups):.3e} deg/h")
     return lines
 
 

@@ -13,9 +13,9 @@ import numpy as np
 
 from fogd.errors import InputError, UsageError
 from fogd.models.folds import folds, held_out_rmse
-from fogd.models.least_squares import POLY_TERMS, fit_linear, fit_polynomial, polynomial_terms
+from fogd.models.least_squares import POLY_TERMS, fit_linear, fit_polynomial, polynomial_terms, temperature_powers
 from fogd.models.rbf import ROWS_PER_CENTRE, fit_rbf_network
-from fogd.models.svr import fit_pso_svr
+from fogd.models.svr import TRENDS, fit_pso_svr
 
 METHODS = ("linear", "ls-poly", "rbf-nn", "pso-svr")
 FITNESSES = ("cv", "train")
@@ -30,16 +30,25 @@ class FitOptions:
     degree: int = 5  # ls-poly order (paper section 4.1)
     poly_terms: str = "full"  # ls-poly: "full" (the paper's) or "temp" (fogd.models.least_squares)
     temperature_columns: tuple[int, ...] = (0,)  # the inputs that are temperatures (for poly_terms "temp")
+    static_columns: tuple[int, ...] = (0,)  # the temperatures that follow the coil (powers in the "poly" trend)
+    trend_degree: int = 3  # the "poly" trend's highest power
     particles: int = 60
     iterations: int = 100
     c1: float = 2.0
     c2: float = 2.0
     fitness: str = "cv"  # "train": the paper's RMSE on the training rows; "cv": RMSE on held-out folds
-    trend: bool = True  # pso-svr: an SVR on top of a linear fit; False is the paper's plain SVR
+    trend: str = "poly"  # pso-svr: the SVR on a "poly" or "linear" least-squares trend, or "none" (the paper's)
     folds: int = 5  # contiguous time folds when there is only one run
     n_jobs: int = 1
     seed: int = 0
     progress: bool = True
+
+
+    def __post_init__(self) -> None:
+        if isinstance(self.trend, bool):  # the older spelling: True was the linear trend
+            self.trend = "linear" if self.trend else "none"
+        if self.trend not in TRENDS:
+            raise UsageError(f"unknown trend {self.trend!r}: choose one of {', '.join(TRENDS)}")
 
 
 @dataclass
@@ -81,15 +90,16 @@ def fit(method: str, X: np.ndarray, y: np.ndarray, groups: np.ndarray, options: 
     y_mean, y_scale = float(y.mean()), float(y.std()) or 1.0
     xs, ys = (X - x_mean) / x_scale, (y - y_mean) / y_scale
     if method == "linear":
-        result = fit_linear(xs, ys)
+        result = fit_linear(xs, ys, groups)
     elif method == "ls-poly":
-        result = fit_polynomial(xs, ys, options.degree, options.poly_terms, options.temperature_columns)
+        result = fit_polynomial(xs, ys, options.degree, options.poly_terms, options.temperature_columns, groups)
     elif method == "rbf-nn":
-        result = fit_rbf_network(xs, ys, splits, options.seed)
+        result = fit_rbf_network(xs, ys, splits, options.seed, groups)
     else:
         result = fit_pso_svr(
             xs, ys, splits, y_scale,
-            fitness=options.fitness, trend=options.trend, particles=options.particles, iterations=options.iterations,
+            fitness=options.fitness, trend=options.trend != "none", trend_powers=trend_powers(X.shape[1], options),
+            groups=groups, particles=options.particles, iterations=options.iterations,
             c1=options.c1, c2=options.c2, seed=options.seed, n_jobs=options.n_jobs, progress=options.progress,
         )
     return Fitted(
@@ -101,9 +111,16 @@ def fit(method: str, X: np.ndarray, y: np.ndarray, groups: np.ndarray, options: 
         params=result.params,
         hyperparameters=result.hyperparameters,
         fitness_history=result.fitness_history,
-        cv_rmse_dph=y_scale * held_out_rmse(result.estimator, xs, ys, splits),
+        cv_rmse_dph=y_scale * held_out_rmse(result.estimator, xs, ys, splits, groups),
         estimator=result.estimator,
     )
+
+
+def trend_powers(inputs: int, options: FitOptions) -> np.ndarray | None:
+    """The "poly" trend's monomials: every input linear, the static columns up to `trend_degree` (None: linear)."""
+    if options.trend != "poly":
+        return None
+    return temperature_powers(inputs, options.trend_degree, options.static_columns)
 
 
 def _check_rows(method: str, train_rows: int, inputs: int, options: FitOptions) -> None:

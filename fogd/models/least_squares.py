@@ -7,7 +7,8 @@ Both are ordinary least squares in the scaled space. The polynomial's terms are 
   the other inputs (temperature rates) linear, with no cross terms: IEEE 952's model with its static term
   a polynomial in temperature. It has far fewer terms and, having no powers of the rate, cannot bend far
   from the linear model where calibration data were sparse.
-Either way the monomials are the `powers` stored in the model file.
+Either way the monomials are the `powers` stored in the model file. Every fit has one offset per calibration
+run (`RunOffsetLeastSquares`), so run-to-run turn-on bias is not read as a temperature effect.
 """
 
 from __future__ import annotations
@@ -15,9 +16,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from sklearn.linear_model import LinearRegression
-from sklearn.pipeline import Pipeline, make_pipeline
-from sklearn.preprocessing import FunctionTransformer, PolynomialFeatures
+from sklearn.base import BaseEstimator, RegressorMixin
+from sklearn.preprocessing import PolynomialFeatures
 
 from fogd.frozen import monomials
 from fogd.models.method import MethodFit
@@ -44,21 +44,54 @@ def temperature_powers(inputs: int, degree: int, temperature_columns: tuple[int,
     return np.array(rows, dtype=np.int64).reshape(-1, inputs)
 
 
-def fit_linear(xs: np.ndarray, ys: np.ndarray) -> MethodFit:
-    model = LinearRegression().fit(xs, ys)
-    params = {"coef": model.coef_.tolist(), "intercept": float(model.intercept_)}
+class RunOffsetLeastSquares(RegressorMixin, BaseEstimator):
+    """Least squares on the monomials `powers` of the scaled inputs (the inputs themselves when None), with one
+    offset per calibration run: a gyro's turn-on bias differs from run to run and is not thermal, so it must
+    not leak into the temperature coefficients. Fitting on rows centred within each run is the same as fitting
+    an offset per run (Frisch-Waugh-Lovell); the model's intercept is then the runs' mean offset, weighted by
+    rows, and predictions need no run."""
+
+    def __init__(self, powers: np.ndarray | None = None) -> None:
+        self.powers = powers
+
+    def features(self, xs: np.ndarray) -> np.ndarray:
+        return xs if self.powers is None else monomials(xs, np.asarray(self.powers))
+
+    def fit(self, xs: np.ndarray, ys: np.ndarray, groups: np.ndarray | None = None) -> "RunOffsetLeastSquares":
+        features = self.features(xs)
+        groups = np.zeros(len(ys), dtype=np.int64) if groups is None else np.asarray(groups)
+        centred_x, centred_y = features.copy(), np.asarray(ys, dtype=np.float64).copy()
+        for group in np.unique(groups):
+            rows = groups == group
+            centred_x[rows] -= features[rows].mean(axis=0)
+            centred_y[rows] -= centred_y[rows].mean()
+        self.coef_ = np.linalg.lstsq(centred_x, centred_y, rcond=None)[0]
+        self.intercept_ = float(np.mean(ys) - features.mean(axis=0) @ self.coef_)
+        return self
+
+    def predict(self, xs: np.ndarray) -> np.ndarray:
+        return self.features(xs) @ self.coef_ + self.intercept_
+
+
+def full_powers(inputs: int, degree: int) -> np.ndarray:
+    """The paper's terms: every monomial of total degree 1..degree, in scikit-learn's PolynomialFeatures order."""
+    return PolynomialFeatures(degree, include_bias=False).fit(np.zeros((1, inputs))).powers_.astype(np.int64)
+
+
+def fit_linear(xs: np.ndarray, ys: np.ndarray, groups: np.ndarray | None = None) -> MethodFit:
+    model = RunOffsetLeastSquares().fit(xs, ys, groups)
+    params = {"coef": model.coef_.tolist(), "intercept": model.intercept_}
     return MethodFit(model, params, {})
 
 
 def fit_polynomial(
-    xs: np.ndarray, ys: np.ndarray, degree: int, terms: str = "full", temperature_columns: tuple[int, ...] = (0,)
+    xs: np.ndarray, ys: np.ndarray, degree: int, terms: str = "full", temperature_columns: tuple[int, ...] = (0,),
+    groups: np.ndarray | None = None,
 ) -> MethodFit:
     if terms == "full":
-        model: Pipeline = make_pipeline(PolynomialFeatures(degree, include_bias=False), LinearRegression()).fit(xs, ys)
-        powers = model.steps[0][1].powers_.astype(int)
+        powers = full_powers(xs.shape[1], degree)
     else:
         powers = temperature_powers(xs.shape[1], degree, temperature_columns)
-        model = make_pipeline(FunctionTransformer(monomials, kw_args={"powers": powers}), LinearRegression()).fit(xs, ys)
-    regression = model.steps[1][1]
-    params = {"powers": powers.tolist(), "coef": regression.coef_.tolist(), "intercept": float(regression.intercept_)}
+    model = RunOffsetLeastSquares(powers).fit(xs, ys, groups)
+    params = {"powers": powers.tolist(), "coef": model.coef_.tolist(), "intercept": model.intercept_}
     return MethodFit(model, params, {"degree": degree, "terms": terms})

@@ -40,11 +40,11 @@ def centre_width(centres: np.ndarray) -> float:
     return width if width > 0 else 1.0
 
 
-def fit_rbf_network(xs: np.ndarray, ys: np.ndarray, splits: list[Split], seed: int) -> MethodFit:
+def fit_rbf_network(xs: np.ndarray, ys: np.ndarray, splits: list[Split], seed: int, groups: np.ndarray | None = None) -> MethodFit:
     count = min(MAX_CENTRES, len(xs) // ROWS_PER_CENTRE)
     centres = KMeans(count, n_init=_KMEANS_RESTARTS, random_state=seed).fit(xs).cluster_centers_
     width = centre_width(centres)
-    scores = [held_out_rmse(rbf_network(centres, width, alpha), xs, ys, splits) for alpha in ALPHAS]
+    scores = [held_out_rmse(rbf_network(centres, width, alpha), xs, ys, splits, groups) for alpha in ALPHAS]
     alpha = float(ALPHAS[int(np.argmin(scores))])
     model = rbf_network(centres, width, alpha).fit(xs, ys)
     lasso: Lasso = model.named_steps["lasso"]
