@@ -22,6 +22,7 @@ from fogd import profiles  # noqa: E402
 from fogd.models import FitOptions  # noqa: E402
 from fogd.runio import Run  # noqa: E402
 from fogd.simulator import Simulation  # noqa: E402
+from fogd.inputs import default_inputs, parse_inputs  # noqa: E402
 from fogd.training import TrainConfig, Trained, train  # noqa: E402
 
 
@@ -58,10 +59,12 @@ def sim_run(profile: str, rate_hz: float, seed: int = 1, rows: int | None = None
 
 
 def trained_model(run: Run, method: str, *, particles: int = 20, iterations: int = 20, fitness: str = "train",
-                  trend: bool = False, seed: int = 0) -> Trained:  # fmt: skip
-    """A model fitted as fogd-train fits it; pso-svr defaults to the paper's plain SVR with its fitness."""
+                  trend: bool | str = False, seed: int = 0, inputs: str | None = None) -> Trained:  # fmt: skip
+    """A model fitted as fogd-train fits it, on the paper's inputs (temperature and its eq. 16 rate) unless
+    `inputs` (the --inputs syntax) says otherwise; pso-svr defaults to the paper's plain SVR with its fitness."""
     options = FitOptions(particles=particles, iterations=iterations, fitness=fitness, trend=trend, seed=seed, progress=False)
-    return train([run], TrainConfig(method=method, fit=options, name=f"bench-{method}"))
+    specs = default_inputs() if inputs is None else parse_inputs(inputs)
+    return train([run], TrainConfig(method=method, inputs=specs, fit=options, name=f"bench-{method}"))
 
 
 def best_time(function: Callable[[], object], repeats: int = 3) -> float:

@@ -27,6 +27,7 @@ from bench_common import machine, print_table, sim_run, trained_model, us, verdi
 import fogd.estimator as fogd_estimator
 from fogd.compensator import Compensator
 from fogd.estimator import TempRateEstimator
+from fogd.inputs import DEFAULT_INPUTS_TEXT
 
 METHODS = ("ls-poly", "rbf-nn", "pso-svr")
 TARGET_RATIO = 20.0
@@ -47,7 +48,7 @@ def sklearn_predictor(trained):
     fitted, model = trained.fitted, trained.model
     estimator = fitted.estimator
     if model.method == "pso-svr":
-        assert not np.any(estimator.trend_coef_) and estimator.trend_intercept_ == 0.0  # the paper's plain SVR
+        assert not estimator.trend  # the paper's plain SVR
         estimator = estimator.svr_
     low, high = model.domain_min, model.domain_max
 
@@ -182,7 +183,29 @@ def main(argv: list[str] | None = None) -> int:
     array_s, one_s = estimator_rows
     print(f"eq. 16 estimator alone: numpy form on a 1-element array {us(array_s)} us, update_one {us(one_s)} us "
           f"({array_s / one_s:.0f}x); paper table 5 reports 1.11e-4 s per point for PSO-SVR")  # fmt: skip
+    default_rows(run, points, swarm, paper_comp1_s=results["comp1"][0], paper_comp4096_s=results["comp4096"][0])
     return 1 if args.strict and failures else 0
+
+
+def default_rows(run, points: int, swarm: tuple[int, int], paper_comp1_s: float, paper_comp4096_s: float) -> None:
+    """fogd-train's default model (PSO-SVR on a polynomial trend over the lag bank) through the compensator,
+    beside the paper's PSO-SVR (temperature and eq. 16 rate) timed above in the same run."""
+    trained = trained_model(run, "pso-svr", particles=swarm[0], iterations=swarm[1], fitness="cv", trend="poly",
+                            inputs=DEFAULT_INPUTS_TEXT)  # fmt: skip
+    temps = np.resize(run.temp_c, points)
+    rows = []
+    for label, chunk, paper_s in (("1/call", 1, paper_comp1_s), ("4096/call", 4096, paper_comp4096_s)):
+        compensator = Compensator(trained.model, run.rate_hz)
+        start = time.perf_counter()
+        for begin in range(0, temps.size, chunk):
+            compensator.process(np.zeros(temps[begin : begin + chunk].size), temps[begin : begin + chunk])
+        seconds = (time.perf_counter() - start) / temps.size
+        rows.append([f"compensator {label}", model_terms(trained), us(paper_s), us(seconds), f"{seconds / paper_s:.2f}x"])
+    print_table(
+        f"1b. fogd-train's default ({DEFAULT_INPUTS_TEXT}, poly trend, SVR) against the paper's PSO-SVR, microseconds per sample",
+        ["path", "default size", "paper's pso-svr", "default", "default / paper's"],
+        rows,
+    )  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -86,7 +86,9 @@ def _parser() -> argparse.ArgumentParser:
         help=f"layers in the diffusive coil, 2..{MAX_COIL_NODES}; with --thermal diffusive "
         f"(default: {DEFAULTS.coil_nodes})")
     presets = "; ".join(f"{name}: ARW {values['arw_dpsh']:g} deg/sqrt(h), bias instability "
-                        f"{values['bias_instability_dph']:g} deg/h" for name, values in NOISE_PRESETS.items())
+                        f"{values['bias_instability_dph']:g} deg/h"
+                        + (f", hysteresis {values['hysteresis_dph']:g} deg/h" if "hysteresis_dph" in values else "")
+                        for name, values in NOISE_PRESETS.items())  # fmt: skip
     add("--noise", choices=NOISE_PRESETS, default=None,
         help=f"gyro noise grade ({presets}); --arw-dpsh and --bias-instability-dph override it "
         "(default: tactical)")
