@@ -23,9 +23,9 @@ def check_calibration_run(run: Run, warmup_s: float, block_s: float) -> None:
     needed_rows = int(round(warmup_s * run.rate_hz)) + block_samples(block_s, run.rate_hz)
     if run.rows < needed_rows:
         raise InputError(
-            f"{run.path}: {run.rows / run.rate_hz:.6g} s of data ({run.rows} rows at {run.rate_hz:.6g} Hz) is "
-            f"shorter than the estimator warm-up ({warmup_s:g} s) plus one {block_s:g} s block; {NEEDS}, which "
-            f"takes hours"
+            f"{run.path}: {run.rows / run.rate_hz:.6g} s of data ({run.rows} rows at {run.rate_hz:.6g} Hz) is too "
+            f"short: the estimator warm-up ({warmup_s:g} s) and one {block_s:g} s block need "
+            f"{needed_rows / run.rate_hz:.6g} s; {NEEDS}, which takes hours"
         )
     valid_c = run.temp_c[temperature_valid(run.temp_c)]
     if valid_c.size == 0:
