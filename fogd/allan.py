@@ -74,7 +74,8 @@ def analyse(rate_dph: np.ndarray, rate_hz: float) -> AllanResult:
     tau_s, adev = allan_deviation(rate, rate_hz)
     short = tau_s <= max(ARW_FIT_MAX_TAU_S, tau_s[min(2, tau_s.size - 1)])
     # log sigma = log N - log(tau) / 2, slope fixed: the intercept is the mean of log sigma + log(tau) / 2
-    sigma_1s_dph = float(np.exp(np.mean(np.log(adev[short]) + 0.5 * np.log(tau_s[short]))))
+    with np.errstate(divide="ignore"):  # a constant rate has ADEV 0: log 0 = -inf gives ARW 0, not a warning
+        sigma_1s_dph = float(np.exp(np.mean(np.log(adev[short]) + 0.5 * np.log(tau_s[short]))))
     lowest = int(np.argmin(adev))
     reached = lowest < adev.size - 1
     return AllanResult(
