@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from fogd.errors import InputError
+from fogd.inputs import default_inputs
 from fogd.models import METHODS, FitOptions
 from fogd.replay import replay, replay_table
 from fogd.report import write_report
@@ -35,7 +36,8 @@ def trained_runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict[str, Tr
     base = tmp_path_factory.mktemp("runs")
     runs = [simulated_run(base / "heat.csv", -10.0, 40.0, 1), simulated_run(base / "cool.csv", 40.0, -10.0, 2)]
     holdout = simulated_run(base / "holdout.csv", 0.0, 30.0, 3)
-    config = TrainConfig(block_s=60.0, fit=FitOptions(particles=6, iterations=4, progress=False))
+    # the paper's inputs: a full 5th-order polynomial on fogd-train's default lag bank needs far longer runs
+    config = TrainConfig(block_s=60.0, inputs=default_inputs(), fit=FitOptions(particles=6, iterations=4, progress=False))
     prepared = prepare(runs, config)
     trained = {}
     for method in METHODS:
