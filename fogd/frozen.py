@@ -1,7 +1,8 @@
 """Frozen, numpy-only model evaluators: what the daemon and replay run (never scikit-learn, never pickle).
 
 A `FrozenModel` takes raw inputs (temperature, temperature rate, ...), clamps them to the calibrated domain
-(as PX4's temperature compensation does, rather than extrapolating) and reports which rows were clamped,
+(as PX4's temperature compensation does, rather than extrapolating; a lag bank's temperatures move together,
+fogd.inputs.clamp_rows) and reports which rows were clamped,
 scales them, and evaluates one of the method evaluators below in the scaled space:
 
     y_dph = y_mean + y_scale * g((clamp(x) - x_mean) / x_scale)
@@ -22,7 +23,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from fogd.inputs import InputSpec
+from fogd.inputs import InputSpec, clamp_rows, shifted_columns
 
 _CHUNK_ROWS = 4096  # kernel evaluations in blocks, so memory stays bounded on million-row replays
 # Above this many kernel terms one row is cheaper through numpy than a Python loop (tools/bench_point.py)
@@ -250,7 +251,7 @@ class FrozenModel:
     def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(thermal error in deg/h, True where an input was clamped) for raw input rows x of shape (n, d)."""
         x = np.asarray(x, dtype=np.float64).reshape(-1, len(self.inputs))
-        clamped_x = np.clip(x, self.domain_min, self.domain_max)
+        clamped_x = clamp_rows(x, self.domain_min, self.domain_max, self._shifted())
         clamped = np.any(clamped_x != x, axis=1)
         if len(clamped_x) >= _UNIQUE_MIN_ROWS and isinstance(self.evaluator, (Polynomial, Svr, RbfNetwork)):
             # Exact: a row's result depends on that row alone, and quantised temperatures (and the rates eq. 16
@@ -271,8 +272,17 @@ class FrozenModel:
             return last[1]
         clamped = False
         xs = []
-        for value, low, high, mean, scale in zip(x, *self._point_constants()):
-            used = low if value < low else high if value > high else value  # np.clip; NaN stays NaN
+        lows, highs, means, scales = self._point_constants()
+        shifted = self._shifted()
+        if shifted:  # clamp_rows, in Python floats
+            first = shifted[0]
+            value, low, high = x[first], lows[first], highs[first]
+            shift = (low if value < low else high if value > high else value) - value
+        for column, (value, low, high, mean, scale) in enumerate(zip(x, lows, highs, means, scales)):
+            if shifted and column in shifted:
+                used = value + shift
+            else:
+                used = low if value < low else high if value > high else value  # np.clip; NaN stays NaN
             if used != value:
                 clamped = True
             xs.append((used - mean) / scale)
@@ -280,6 +290,13 @@ class FrozenModel:
         if not clamped:  # (NaN inputs count as clamped, so a remembered row never holds one)
             object.__setattr__(self, "_last_point", (x, result))
         return result
+
+    def _shifted(self) -> tuple[int, ...]:
+        shifted = self.__dict__.get("_shifted_columns")
+        if shifted is None:
+            shifted = shifted_columns(self.inputs)
+            object.__setattr__(self, "_shifted_columns", shifted)
+        return shifted
 
     def _point_constants(self) -> tuple[tuple, ...]:
         constants = self.__dict__.get("_constants")

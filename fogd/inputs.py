@@ -184,6 +184,32 @@ def static_columns(specs: tuple[InputSpec, ...], max_tau_s: float = STATIC_MAX_T
     return (min(lags, key=lambda i: specs[i].tau_s),) if lags else ()
 
 
+def shifted_columns(specs: tuple[InputSpec, ...]) -> tuple[int, ...]:
+    """The temperature inputs that the calibrated-domain clamp moves together (the fastest first), for models
+    with lagged temperatures; () for the others, whose inputs are clamped one by one.
+
+    A lag bank's slow lags cover a narrower range in calibration than the sensor does (a 3-hour lag never
+    reaches the end of a 45-minute soak), so clamping each lag to its own range would bend the differences
+    between lags, which carry the coil's thermal state, wherever a slow lag steps outside. Moving them all by
+    the fastest temperature's clamp keeps the state and stops only the static extrapolation."""
+    if not any(spec.kind == TEMP_LAG for spec in specs):
+        return ()
+    columns = temperature_columns(specs)
+    speed = lambda i: 0.0 if specs[i].kind == TEMP else specs[i].tau_s  # noqa: E731
+    return tuple(sorted(columns, key=speed))
+
+
+def clamp_rows(x: np.ndarray, low: np.ndarray, high: np.ndarray, shifted: tuple[int, ...]) -> np.ndarray:
+    """Input rows clamped to the calibrated domain [low, high]: rates column by column, and the `shifted`
+    temperature columns moved together by the first one's clamp (`shifted_columns`)."""
+    out = np.clip(x, low, high)
+    if shifted:
+        first = shifted[0]
+        shift = out[:, first] - x[:, first]
+        out[:, shifted] = x[:, shifted] + shift[:, None]
+    return out
+
+
 def warmup_samples(specs: tuple[InputSpec, ...], rate_hz: float) -> int:
     """Samples before every input is real (the longest estimator window; a lag starts in steady state at the
     first temperature and has no warm-up)."""

@@ -88,7 +88,7 @@ def test_sim_train_replay_round_trip(runs, tmp_path):
 
 def test_compare_and_holdout_print_every_method(runs, tmp_path):
     result = command(
-        "fogd-train", runs["heat"], "--compare", "--holdout", runs["cool"], "--block-s", "60", *QUICK_PSO
+        "fogd-train", runs["heat"], "--compare", "--inputs", "paper", "--holdout", runs["cool"], "--block-s", "60", *QUICK_PSO
     )
     assert result.returncode == 0, result.stderr
     table3, table4 = result.stdout.split("Table 4")
@@ -125,6 +125,39 @@ def test_train_data_errors(runs, tmp_path):
     bad_cell = tmp_path / "cell.csv"
     bad_cell.write_text("t_s,rate_dph,temp_c\n0,1,2\n0.1,x,2\n")
     assert_one_line_error(command("fogd-train", bad_cell, "-o", tmp_path / "m.json"), 65, "cell.csv:3", "column 2")
+
+
+def test_train_refuses_a_run_that_cannot_calibrate(tmp_path):
+    """Long enough, but isothermal, or with a span under 5 C: one line saying what a calibration run needs."""
+    rows = 20_000  # 2000 s at 10 Hz
+    for name, span_c in (("flat", 0.0), ("narrow", 3.0)):
+        path = tmp_path / f"{name}.csv"
+        temps = 20.0 + span_c * np.arange(rows) / rows
+        path.write_text("t_s,rate_dph,temp_c\n" + "".join(f"{i / 10},7.5,{t:.4f}\n" for i, t in enumerate(temps)))
+        result = command("fogd-train", path, "-o", tmp_path / "m.json", "--method", "linear")
+        assert_one_line_error(result, 65, f"{name}.csv", "5 C", "calibration run must")
+        assert not (tmp_path / "m.json").exists()
+
+
+def test_train_refuses_a_model_worse_than_no_compensation(runs, tmp_path):
+    """A gyro with no thermal error at all: any model's held-out drift exceeds the uncompensated drift, so the
+    model is refused in one line naming both figures; --force writes it, with a warning."""
+    quiet = tmp_path / "quiet.csv"
+    data = read_run(runs["heat"])
+    rng = np.random.default_rng(0)
+    rate = 7.5 + rng.normal(0.0, 0.05, data.rows)
+    quiet.write_text("t_s,rate_dph,temp_c\n" + "".join(
+        f"{t:.1f},{r:.6f},{c:.4f}\n" for t, r, c in zip(data.t_s.tolist(), rate.tolist(), data.temp_c.tolist())))  # fmt: skip
+    model = tmp_path / "m.json"
+    args = [quiet, "-o", model, "--method", "ls-poly", "--inputs", "paper", "--degree", "5", "--block-s", "60"]
+    result = command("fogd-train", *args)
+    assert result.returncode == 65 and "Traceback" not in result.stderr
+    refusal = result.stderr.strip().splitlines()[-1]  # after the fit's summary lines
+    assert all(word in refusal for word in ("held-out drift", "uncompensated drift", "--force")), refusal
+    assert not model.exists()
+    forced = command("fogd-train", *args, "--force")
+    assert forced.returncode == 0, forced.stderr
+    assert "written anyway" in forced.stderr and model.exists()
 
 
 def test_replay_errors(runs, tmp_path):

@@ -473,3 +473,44 @@ def test_multi_scale_guarded_model_through_fogd_equals_replay(tmp_path):
     assert_same_as_replay(output, expected)
     flags = expected[:, 6].astype(int)
     assert ((flags & 32) != 0).any() and ((flags & 32) == 0).sum() > SAMPLES // 4  # both branches were used
+
+
+def test_lag_bank_model_with_polynomial_trend_through_fogd_equals_replay(tmp_path):
+    """fogd-train's default kind of model (an SVR on a polynomial trend over a bank of lags, model file
+    version 2), with a calibrated domain the run leaves so the lags' shifted clamp is exercised: the daemon
+    equals replay."""
+    from fogd.inputs import parse_inputs
+
+    inputs = parse_inputs("lags@0.3,1,3,10")
+    powers = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1], [2, 0, 0, 0], [3, 0, 0, 0], [0, 2, 0, 0]]
+    model = tmp_path / "bank.json"
+    doc = modelfile.document(
+        name="e2e-bank", method="pso-svr", inputs=inputs,
+        x_mean=np.full(4, 22.0), x_scale=np.full(4, 2.0), y_mean=0.1, y_scale=0.5,
+        domain_min=np.full(4, -40.0), domain_max=np.full(4, 22.0),
+        params={"support_vectors": [[0.0, 0.1, 0.2, 0.3], [-1.0, -0.5, 0.0, 0.5]], "dual_coef": [0.7, -0.4],
+                "gamma": 0.3, "trend_coef": [0.2, -0.3, 0.05, 0.1, 0.02, -0.01, 0.03], "trend_powers": powers,
+                "intercept": 0.01},
+        reference_dph=0.0, training={}, metrics={}, created_utc="2024-01-01T00:00:00Z",
+    )  # fmt: skip
+    modelfile.save(model, doc)
+    assert json.loads(model.read_text())["version"] == 2
+    samples = run_samples("kvh-a", seed=7)
+    run_csv, out = tmp_path / "run.csv", tmp_path / "out.csv"
+    write_run(run_csv, samples)
+    emu = Emu(tmp_path, run_csv, "kvh-a")
+    try:
+        fogd = start_fogd(tmp_path, emu.path, model, "--protocol", "kvh-a", "--out-format", "csv", "--out", str(out))
+        try:
+            emu.finish()
+            wait_for_rows(out, SAMPLES + 1)
+            status, _ = fogd.terminate()
+        finally:
+            fogd.kill()
+    finally:
+        emu.kill()
+    assert status == 0, fogd.stderr
+    output, expected = np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2), replayed(tmp_path, model, samples)
+    assert_same_as_replay(output, expected)
+    flags = expected[:, 6].astype(int)
+    assert ((flags & 2) != 0).any() and ((flags & 2) == 0).any()  # clamped and unclamped samples both served

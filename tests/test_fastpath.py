@@ -15,7 +15,7 @@ from fogd.compensator import Compensator
 from fogd.estimator import EstimatorSettings, TempRateEstimator, temp_rate_batch
 from fogd.flags import Flag
 from fogd.frozen import FrozenModel, Linear, Polynomial, RbfNetwork, Svr, unique_rows
-from fogd.inputs import default_inputs, parse_inputs
+from fogd.inputs import clamp_rows, default_inputs, parse_inputs, shifted_columns
 from fogd.runio import read_run
 
 
@@ -221,3 +221,54 @@ def test_lagged_and_multi_window_inputs_one_sample_at_a_time_equal_the_array_pat
         chunked = compensated_in_chunks(frozen_model, rate, temp, size)
         for column, values in chunked.items():
             assert values.tobytes() == whole[column].tobytes(), (size, column)
+
+
+def lag_bank_model() -> FrozenModel:
+    """An SVR on a polynomial trend over temp and three lags, its domain narrower than the data."""
+    specs = parse_inputs("temp,lags@5,50,500")
+    powers = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1], [2, 0, 0, 0], [0, 3, 0, 0]])
+    evaluator = Svr(np.array([[0.1, 0.0, -0.1, 0.2], [-0.3, 0.2, 0.1, 0.0]]), np.array([0.4, -0.2]), 0.7,
+                    np.array([0.3, -0.2, 0.1, 0.05, 0.02, -0.01]), 0.05, powers)  # fmt: skip
+    return FrozenModel(
+        method="pso-svr", inputs=specs, x_mean=np.full(4, 20.0), x_scale=np.full(4, 3.0), y_mean=0.0, y_scale=1.0,
+        domain_min=np.array([15.0, 16.0, 17.0, 18.0]), domain_max=np.array([25.0, 24.0, 23.0, 22.0]), evaluator=evaluator,
+    )  # fmt: skip
+
+
+def test_lag_bank_clamp_moves_the_temperatures_together():
+    """Outside the calibrated range the fastest temperature is clamped and every lag moves by the same amount,
+    so the differences between lags (the coil's thermal state) are kept; inside, nothing moves."""
+    model = lag_bank_model()
+    x = np.array([[30.0, 28.0, 25.0, 21.0], [20.0, 19.0, 18.5, 18.2], [10.0, 11.0, 12.0, 14.0]])
+    clamped = clamp_rows(x, model.domain_min, model.domain_max, shifted_columns(model.inputs))
+    np.testing.assert_array_equal(clamped[1], x[1])
+    np.testing.assert_allclose(clamped[0], x[0] - 5.0)
+    np.testing.assert_allclose(clamped[2], x[2] + 5.0)
+    _, flags = model.predict(x)
+    assert flags.tolist() == [True, False, True]
+
+
+def test_lag_bank_polynomial_trend_predict_one_equals_predict():
+    model = lag_bank_model()
+    rng = np.random.default_rng(3)
+    x = 20.0 + rng.normal(0.0, 5.0, (300, 4))
+    want, want_clamped = model.predict(x)
+    got = [model.predict_one(tuple(row)) for row in x.tolist()]
+    np.testing.assert_allclose([value for value, _ in got], want, rtol=1e-12, atol=1e-12)
+    assert [flag for _, flag in got] == want_clamped.tolist()
+    assert 0 < want_clamped.sum() < len(x)
+
+
+def test_lag_bank_one_sample_chunks_equal_big_chunks():
+    """The daemon's one-sample chunks and replay's big chunks through a lag-bank model: inputs and flags bit
+    for bit, the compensation within 1e-12."""
+    model = lag_bank_model()
+    rng = np.random.default_rng(11)
+    temp = np.round(20 + np.linspace(0.0, 10.0, 3000) + rng.normal(0, 0.3, 3000))  # whole degrees, out of the domain
+    rate = rng.normal(0, 1, temp.size)
+    whole = compensated_in_chunks(model, rate, temp, temp.size)
+    assert ((whole["flags"] & Flag.CLAMPED) != 0).any()
+    for size in (1, 16):
+        chunked = compensated_in_chunks(model, rate, temp, size)
+        assert chunked["flags"].tobytes() == whole["flags"].tobytes()
+        np.testing.assert_allclose(chunked["comp_dph"], whole["comp_dph"], rtol=1e-12, atol=1e-12)

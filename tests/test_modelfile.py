@@ -176,6 +176,36 @@ def test_saved_file_is_plain_json(tmp_path):
     assert parsed["inputs"] == [{"kind": "temp_c"}, rate_input]
 
 
+def test_version_1_files_still_load_and_give_the_same_compensation():
+    """A version-1 file (what fogd wrote before the polynomial trend) loads and evaluates as before."""
+    doc = make_doc("pso-svr")
+    old = json.loads(json.dumps(doc))
+    old["version"] = 1
+    x = np.array([[20.0, 0.001], [5.0, -0.002]])
+    np.testing.assert_array_equal(modelfile.from_document(old).predict(x)[0], modelfile.from_document(doc).predict(x)[0])
+
+
+def test_polynomial_trend_is_version_2_and_checked():
+    doc = make_doc("pso-svr")
+    doc["params"]["trend_powers"] = [[1, 0], [0, 1], [2, 0], [3, 0]]
+    doc["params"]["trend_coef"] = [0.1, -0.2, 0.03, -0.004]
+    model = modelfile.from_document(doc)
+    x = np.array([[20.0, 0.001]])
+    xs = (x - model.x_mean) / model.x_scale
+    trend = xs[0, 0] * 0.1 - 0.2 * xs[0, 1] + 0.03 * xs[0, 0] ** 2 - 0.004 * xs[0, 0] ** 3
+    without = json.loads(json.dumps(doc))
+    del without["params"]["trend_powers"]
+    without["params"]["trend_coef"] = [0.0, 0.0]
+    kernel = modelfile.from_document(without).predict(x)[0][0]
+    assert model.predict(x)[0][0] == pytest.approx(kernel + model.y_scale * trend, rel=1e-12)
+    doc["params"]["trend_coef"] = [0.1, -0.2]  # one coefficient per monomial
+    with pytest.raises(ModelFileError, match="trend_coef"):
+        modelfile.from_document(doc)
+    doc["params"]["trend_powers"] = [[1.5, 0]]
+    with pytest.raises(ModelFileError, match="trend_powers"):
+        modelfile.from_document(doc)
+
+
 def test_save_refuses_an_invalid_document_and_writes_nothing(tmp_path):
     doc = make_doc("linear")
     doc["params"]["coef"] = [1.0]

@@ -39,6 +39,18 @@ def test_frozen_params_reproduce_the_estimator(method: str) -> None:
     assert fitted.cv_rmse_dph is not None and np.isfinite(fitted.cv_rmse_dph)
 
 
+@pytest.mark.parametrize("trend", ["poly", "linear"])
+def test_frozen_svr_with_its_trend_reproduces_the_estimator(trend: str) -> None:
+    """The model file's trend (monomials and coefficients, offsets per run folded into the intercept) gives the
+    scikit-learn estimator's predictions."""
+    x, y, groups = chamber_rows(80, seed=12, runs=3)
+    options = FitOptions(particles=6, iterations=4, trend=trend, static_columns=(0,), progress=False)
+    fitted = fit("pso-svr", x, y, groups, options)
+    assert ("trend_powers" in fitted.params) == (trend == "poly")
+    xs = (x - fitted.x_mean) / fitted.x_scale
+    np.testing.assert_allclose(build_evaluator("pso-svr", fitted.params)(xs), fitted.estimator.predict(xs), rtol=1e-9, atol=1e-9)
+
+
 def test_ls_poly_recovers_a_known_polynomial() -> None:
     rng = np.random.default_rng(3)
     x = np.c_[rng.uniform(-15.0, 50.0, 60), rng.uniform(-0.02, 0.02, 60)]

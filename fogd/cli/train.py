@@ -128,6 +128,7 @@ def body(argv: Sequence[str] | None) -> int:
         sets = input_sets(args.auto_inputs, args.average_s, args.step_s) if auto else [inputs]
         runs = [read_run(path) for path in args.runs]
         for loaded in runs:
+            estimator.samples(loaded.rate_hz)  # --window-s and --average-s, checked even when --inputs has no rate
             for specs in sets:
                 for spec in specs:
                     if spec.estimator is not None:
@@ -179,7 +180,12 @@ def body(argv: Sequence[str] | None) -> int:
         trained = {}
         for method in methods:
             config.method = method
-            trained[method] = train(runs, config, prepared)
+            try:
+                trained[method] = train(runs, config, prepared)
+            except InputError as error:  # --compare: a family these runs cannot fit is skipped, and said so
+                if method == args.method:
+                    raise
+                print(f"{PROG}: --compare: {method} skipped: {error}", file=sys.stderr)
         label = args.method
         chosen = trained[args.method]
         held_out_dph = chosen.fitted.cv_rmse_dph
