@@ -224,3 +224,18 @@ def test_trend_carries_a_linear_error_beyond_the_data_where_plain_svr_decays() -
     error = {trend: abs(TrendSvr(10.0, 0.01, 0.5, trend).fit(xs, ys).predict(far)[0] - truth) for trend in (True, False)}
     assert error[True] < 0.1
     assert error[False] > 1.0  # the kernel has decayed to its intercept
+
+
+def test_convergence_warnings_are_counted_not_printed(recwarn, monkeypatch) -> None:
+    """Lasso stopped after one iteration warns on every fit: the warnings become a count on the fit (one
+    summary line in fogd-train) and none reaches the terminal."""
+    from sklearn.exceptions import ConvergenceWarning
+
+    import fogd.models.rbf as rbf
+
+    monkeypatch.setattr(rbf, "_LASSO_MAX_ITER", 1)
+    x, y, groups = chamber_rows(80, seed=13)
+    fitted = fit("rbf-nn", x, y, groups, QUICK)
+    assert fitted.unconverged_fits > 0
+    assert not [w for w in recwarn if issubclass(w.category, ConvergenceWarning)]
+    assert fit("linear", x, y, groups, QUICK).unconverged_fits == 0

@@ -191,6 +191,10 @@ def body(argv: Sequence[str] | None) -> int:
         held_out_dph = chosen.fitted.cv_rmse_dph
     for line in _summary(chosen):
         print(line, file=sys.stderr)
+    for method, fitted in ((m, t.fitted) for m, t in trained.items()):
+        if fitted.unconverged_fits:
+            print(f"{method}: {fitted.unconverged_fits} of scikit-learn's fits stopped at their iteration limit "
+                  "(scored by held-out error like every other fit)", file=sys.stderr)
     print(f"\nTable 3: fit on the training runs ({len(chosen.error_dph)} blocks of {args.block_s:g} s)")
     rows = [("Before compensation", chosen.before)] + [(m, t.after) for m, t in trained.items()]
     print(error_table(rows))

@@ -7,9 +7,11 @@ Scaling uses the mean and std of all training rows (a zero std becomes 1). It is
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
+from sklearn.exceptions import ConvergenceWarning
 
 from fogd.errors import InputError, UsageError
 from fogd.models.folds import folds, held_out_rmse
@@ -65,6 +67,7 @@ class Fitted:
     fitness_history: list[float] = field(default_factory=list)  # PSO best fitness (deg/h) per iteration
     cv_rmse_dph: float | None = None
     estimator: object = None  # scikit-learn, scaled space; never written to a model file
+    unconverged_fits: int = 0  # scikit-learn fits that stopped at their iteration limit (summarised, not warned)
 
 
 def fit(method: str, X: np.ndarray, y: np.ndarray, groups: np.ndarray, options: FitOptions = FitOptions()) -> Fitted:
@@ -89,19 +92,30 @@ def fit(method: str, X: np.ndarray, y: np.ndarray, groups: np.ndarray, options: 
     x_scale = np.where(x_std > 0, x_std, 1.0)
     y_mean, y_scale = float(y.mean()), float(y.std()) or 1.0
     xs, ys = (X - x_mean) / x_scale, (y - y_mean) / y_scale
-    if method == "linear":
-        result = fit_linear(xs, ys, groups)
-    elif method == "ls-poly":
-        result = fit_polynomial(xs, ys, options.degree, options.poly_terms, options.temperature_columns, groups)
-    elif method == "rbf-nn":
-        result = fit_rbf_network(xs, ys, splits, options.seed, groups)
-    else:
-        result = fit_pso_svr(
-            xs, ys, splits, y_scale,
-            fitness=options.fitness, trend=options.trend != "none", trend_powers=trend_powers(X.shape[1], options),
-            groups=groups, particles=options.particles, iterations=options.iterations,
-            c1=options.c1, c2=options.c2, seed=options.seed, n_jobs=options.n_jobs, progress=options.progress,
-        )
+    # scikit-learn warns once per unconverged fit (Lasso, SVR): hundreds of lines in a swarm or a fold loop;
+    # they are counted and summarised in one line per family instead (Fitted.unconverged_fits)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ConvergenceWarning)
+        if method == "linear":
+            result = fit_linear(xs, ys, groups)
+        elif method == "ls-poly":
+            result = fit_polynomial(xs, ys, options.degree, options.poly_terms, options.temperature_columns, groups)
+        elif method == "rbf-nn":
+            result = fit_rbf_network(xs, ys, splits, options.seed, groups)
+        else:
+            result = fit_pso_svr(
+                xs, ys, splits, y_scale,
+                fitness=options.fitness, trend=options.trend != "none", trend_powers=trend_powers(X.shape[1], options),
+                groups=groups, particles=options.particles, iterations=options.iterations,
+                c1=options.c1, c2=options.c2, seed=options.seed, n_jobs=options.n_jobs, progress=options.progress,
+            )
+        cv_rmse_dph = y_scale * held_out_rmse(result.estimator, xs, ys, splits, groups)
+    unconverged = 0
+    for warning in caught:
+        if issubclass(warning.category, ConvergenceWarning):
+            unconverged += 1
+        else:
+            warnings.warn_explicit(warning.message, warning.category, warning.filename, warning.lineno)
     return Fitted(
         method=method,
         x_mean=x_mean,
@@ -111,8 +125,9 @@ def fit(method: str, X: np.ndarray, y: np.ndarray, groups: np.ndarray, options: 
         params=result.params,
         hyperparameters=result.hyperparameters,
         fitness_history=result.fitness_history,
-        cv_rmse_dph=y_scale * held_out_rmse(result.estimator, xs, ys, splits, groups),
+        cv_rmse_dph=cv_rmse_dph,
         estimator=result.estimator,
+        unconverged_fits=unconverged,
     )
 
 
