@@ -40,7 +40,11 @@ from fogd.models.folds import drift_rmse
 from fogd.models.least_squares import POLY_TERMS
 from fogd.training import TrainConfig, Trained, prepare, train
 
-FAMILIES = ("linear", "ls-poly", "rbf-nn", "pso-svr")
+# rbf-nn is left out: its Gaussian units have no trend underneath and decay to a constant away from their
+# centres, so on a lag bank's state (six dimensions) they cannot carry the thermal dynamics to a history the
+# calibration runs did not have (accuracy table: 1.4x linear's drift on a fast ramp with a whole-degree
+# sensor, where the SVR on its trend is at 0.6x); fogd-train --method rbf-nn and --compare still fit it.
+FAMILIES = ("linear", "ls-poly", "pso-svr")
 # fogd's lag bank only: the paper's temp,rate@50 cannot describe the coil's thermal state (README, accuracy
 # table: 10-30x the noise floor on held-out histories where the bank's models reach 1-2x), yet with three
 # calibration runs leave-one-run-out scores them better (a model of the bank fitted on a heating and a
