@@ -88,16 +88,17 @@ def parse_inputs(text: str, average_s: float = 0.5, step_s: float = 0.0) -> tupl
     in_bank = False
     for item in (part.strip() for part in text.split(",")):
         name, _, value = item.partition("@")
+        bank_tau_s = _float_or_none(name) if in_bank and not value else None
         try:
-            if in_bank and not value and _is_number(name):
-                new = [InputSpec(TEMP_LAG, tau_s=float(name))]
+            if bank_tau_s is not None:
+                new = [InputSpec(TEMP_LAG, tau_s=bank_tau_s)]
             elif name == "lags" and value:
                 new = [InputSpec(TEMP_LAG, tau_s=tau_s) for tau_s in _bank_taus(value)]
             else:
                 new = [_single(name, value, average_s, step_s)]
         except ValueError as error:
             raise ValueError(f"--inputs item {item!r}: {error}") from None
-        in_bank = name == "lags" or (in_bank and not value and _is_number(name))
+        in_bank = name == "lags" or bank_tau_s is not None
         for spec in new:
             if spec in specs:
                 raise ValueError(f"--inputs item {item!r} gives {spec.short} twice")
@@ -133,12 +134,11 @@ def _bank_taus(value: str) -> list[float]:
     return [float(f"{tau_s:.3g}") for tau_s in np.geomspace(first, last, count)]
 
 
-def _is_number(text: str) -> bool:
+def _float_or_none(text: str) -> float | None:
     try:
-        float(text)
+        return float(text)
     except ValueError:
-        return False
-    return True
+        return None
 
 
 def describe_inputs(specs: tuple[InputSpec, ...]) -> str:

@@ -436,6 +436,29 @@ def test_command_line_wins_over_config(tmp_path, gyro, model_path):
     assert out.read_text().startswith("t_s,rate_dph") and not (tmp_path / "from-config.out").exists()
 
 
+def kvh_run_through_fogd_equals_replay(tmp_path: Path, model: Path, seed: int) -> np.ndarray:
+    """Stream a simulated run as KVH Format A through the emulator and the real daemon (csv out), check the
+    output equals fogd-replay of the same run, and return replay's rows."""
+    samples = run_samples("kvh-a", seed=seed)
+    run_csv, out = tmp_path / "run.csv", tmp_path / "out.csv"
+    write_run(run_csv, samples)
+    emu = Emu(tmp_path, run_csv, "kvh-a")
+    try:
+        fogd = start_fogd(tmp_path, emu.path, model, "--protocol", "kvh-a", "--out-format", "csv", "--out", str(out))
+        try:
+            emu.finish()
+            wait_for_rows(out, SAMPLES + 1)
+            status, _ = fogd.terminate()
+        finally:
+            fogd.kill()
+    finally:
+        emu.kill()
+    assert status == 0, fogd.stderr
+    output, expected = np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2), replayed(tmp_path, model, samples)
+    assert_same_as_replay(output, expected)
+    return expected
+
+
 def test_multi_scale_guarded_model_through_fogd_equals_replay(tmp_path):
     """A kernel model on temperature, two eq. 16 windows and a lagged temperature, with a joint-space domain
     guard (part of the run is OUT_OF_DOMAIN and uses the linear fallback): the daemon equals replay."""
@@ -454,23 +477,7 @@ def test_multi_scale_guarded_model_through_fogd_equals_replay(tmp_path):
                       "fallback": {"method": "linear", "params": {"coef": [0.3, 0.0, 0.0, 0.0], "intercept": 0.0}}},
     )  # fmt: skip
     modelfile.save(model, doc)
-    samples = run_samples("kvh-a", seed=5)
-    run_csv, out = tmp_path / "run.csv", tmp_path / "out.csv"
-    write_run(run_csv, samples)
-    emu = Emu(tmp_path, run_csv, "kvh-a")
-    try:
-        fogd = start_fogd(tmp_path, emu.path, model, "--protocol", "kvh-a", "--out-format", "csv", "--out", str(out))
-        try:
-            emu.finish()
-            wait_for_rows(out, SAMPLES + 1)
-            status, _ = fogd.terminate()
-        finally:
-            fogd.kill()
-    finally:
-        emu.kill()
-    assert status == 0, fogd.stderr
-    output, expected = np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2), replayed(tmp_path, model, samples)
-    assert_same_as_replay(output, expected)
+    expected = kvh_run_through_fogd_equals_replay(tmp_path, model, seed=5)
     flags = expected[:, 6].astype(int)
     assert ((flags & 32) != 0).any() and ((flags & 32) == 0).sum() > SAMPLES // 4  # both branches were used
 
@@ -495,22 +502,6 @@ def test_lag_bank_model_with_polynomial_trend_through_fogd_equals_replay(tmp_pat
     )  # fmt: skip
     modelfile.save(model, doc)
     assert json.loads(model.read_text())["version"] == 2
-    samples = run_samples("kvh-a", seed=7)
-    run_csv, out = tmp_path / "run.csv", tmp_path / "out.csv"
-    write_run(run_csv, samples)
-    emu = Emu(tmp_path, run_csv, "kvh-a")
-    try:
-        fogd = start_fogd(tmp_path, emu.path, model, "--protocol", "kvh-a", "--out-format", "csv", "--out", str(out))
-        try:
-            emu.finish()
-            wait_for_rows(out, SAMPLES + 1)
-            status, _ = fogd.terminate()
-        finally:
-            fogd.kill()
-    finally:
-        emu.kill()
-    assert status == 0, fogd.stderr
-    output, expected = np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2), replayed(tmp_path, model, samples)
-    assert_same_as_replay(output, expected)
+    expected = kvh_run_through_fogd_equals_replay(tmp_path, model, seed=7)
     flags = expected[:, 6].astype(int)
     assert ((flags & 2) != 0).any() and ((flags & 2) == 0).any()  # clamped and unclamped samples both served
