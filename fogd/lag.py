@@ -11,9 +11,10 @@ Both forms, streaming (`LagFilter.update`, any chunk size, O(1) per sample whate
 `zi`, and for the daemon's chunks of a few samples (`update_one`) lfilter's own two operations in Python
 floats (y = z + b0 x, z = (1 - a) y), which give the same floats without its per-call overhead. The
 recurrence is computed sample by sample in the same order whatever the chunking, so both forms give the same
-floats bit for bit (tests/test_lag.py proves it for arbitrary chunkings). scipy is imported when a filter is
-made (a model with a lag input is loaded), not with this module: a daemon whose model has no lag input never
-maps it (about 70 MB of RSS).
+floats bit for bit (tests/test_lag.py proves it for arbitrary chunkings). scipy is imported for the first
+chunk longer than `PYTHON_CHUNK` samples (replay, training), not with this module nor with a filter: the
+daemon's chunks, one frame or a burst, run in Python floats, so the daemon never maps scipy (about 70 MB of
+RSS), whatever its model.
 """
 
 from __future__ import annotations
@@ -25,6 +26,10 @@ import numpy as np
 from fogd.estimator import SCALAR_CHUNK
 
 MAX_TAU_S = 86400.0
+# Chunks up to this many samples run the recurrence in Python floats (the same floats as lfilter): the
+# daemon's batches, one frame or a burst, never import scipy (about 70 MB of RSS); replay's and training's
+# long chunks take lfilter, imported on the first of them.
+PYTHON_CHUNK = 4096
 
 
 def coefficients(tau_s: float, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
@@ -39,9 +44,7 @@ class LagFilter:
     """The lag, streaming: feed finite temperatures in chunks of any size."""
 
     def __init__(self, tau_s: float, rate_hz: float) -> None:
-        from scipy.signal import lfilter  # at model load, never mid-stream: the import takes most of a second
-
-        self._lfilter = lfilter
+        self._lfilter = None  # scipy's, imported for the first chunk longer than PYTHON_CHUNK
         self.tau_s = float(tau_s)
         self.rate_hz = float(rate_hz)
         self._b, self._a = coefficients(tau_s, rate_hz)
@@ -53,8 +56,12 @@ class LagFilter:
 
     def update(self, temp_c: np.ndarray) -> np.ndarray:
         temp_c = np.atleast_1d(np.asarray(temp_c, dtype=np.float64))
-        if temp_c.size <= SCALAR_CHUNK:
+        if temp_c.size <= SCALAR_CHUNK or (self._lfilter is None and temp_c.size <= PYTHON_CHUNK):
             return np.array([self.update_one(value) for value in temp_c.tolist()], dtype=np.float64)
+        if self._lfilter is None:
+            from scipy.signal import lfilter
+
+            self._lfilter = lfilter
         if self._state is None:
             self._state = self._keep * temp_c.item(0)  # steady state at the first input
         out, state = self._lfilter(self._b, self._a, temp_c, zi=np.array([self._state]))

@@ -302,9 +302,13 @@ def test_same_output_is_kvh_with_compensated_z(tmp_path, gyro, model_path):
                for out_frame, in_frame in zip(decoded, frames))  # fmt: skip
 
 
-def test_the_daemon_maps_neither_scikit_learn_nor_scipy(tmp_path, gyro, model_path):
-    """The frozen evaluators are numpy only, and a model without lag inputs needs nothing of scipy: the
-    running daemon, after compensating frames, has neither library's files mapped (memory, attack surface)."""
+@pytest.mark.parametrize("kind", ["paper's inputs", "lag bank"])
+def test_the_daemon_maps_neither_scikit_learn_nor_scipy(tmp_path, gyro, model_path, kind):
+    """The frozen evaluators are numpy only, and the daemon's lag filters run in Python floats: the running
+    daemon, after compensating a burst of frames, has neither library's files mapped (memory, attack surface),
+    with the paper's inputs or fogd-train's kind of model (a lag bank)."""
+    if kind == "lag bank":
+        model_path = lag_bank_model_file(tmp_path)
     out = tmp_path / "out.csv"
     fogd = start_fogd(tmp_path, gyro.path, model_path, "--out", str(out), "--out-format", "csv")
     try:
@@ -482,10 +486,9 @@ def test_multi_scale_guarded_model_through_fogd_equals_replay(tmp_path):
     assert ((flags & 32) != 0).any() and ((flags & 32) == 0).sum() > SAMPLES // 4  # both branches were used
 
 
-def test_lag_bank_model_with_polynomial_trend_through_fogd_equals_replay(tmp_path):
-    """fogd-train's default kind of model (an SVR on a polynomial trend over a bank of lags, model file
-    version 2), with a calibrated domain the run leaves so the lags' shifted clamp is exercised: the daemon
-    equals replay."""
+def lag_bank_model_file(tmp_path: Path) -> Path:
+    """A model like fogd-train's default (an SVR on a polynomial trend over a bank of lags, version 2), its
+    calibrated domain ending at 22 C so that a run past it is clamped."""
     from fogd.inputs import parse_inputs
 
     inputs = parse_inputs("lags@0.3,1,3,10")
@@ -501,6 +504,14 @@ def test_lag_bank_model_with_polynomial_trend_through_fogd_equals_replay(tmp_pat
         reference_dph=0.0, training={}, metrics={}, created_utc="2024-01-01T00:00:00Z",
     )  # fmt: skip
     modelfile.save(model, doc)
+    return model
+
+
+def test_lag_bank_model_with_polynomial_trend_through_fogd_equals_replay(tmp_path):
+    """fogd-train's default kind of model (an SVR on a polynomial trend over a bank of lags, model file
+    version 2), with a calibrated domain the run leaves so the lags' shifted clamp is exercised: the daemon
+    equals replay."""
+    model = lag_bank_model_file(tmp_path)
     assert json.loads(model.read_text())["version"] == 2
     expected = kvh_run_through_fogd_equals_replay(tmp_path, model, seed=7)
     flags = expected[:, 6].astype(int)

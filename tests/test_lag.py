@@ -39,6 +39,18 @@ def test_one_sample_at_a_time_on_a_long_run_equals_batch():
     assert np.array_equal(streamed, lag_batch(temps, 60.0, 50.0))
 
 
+def test_python_floats_and_lfilter_chunks_interleaved_equal_batch():
+    """Chunks below PYTHON_CHUNK (the daemon's: Python floats) and above it (replay's: scipy's lfilter), in any
+    order, carry the same state and give lfilter's floats over the whole run."""
+    from fogd.lag import PYTHON_CHUNK
+
+    rng = np.random.default_rng(4)
+    temps = 20 + np.round(np.cumsum(rng.normal(0, 0.05, 30_000)))
+    sizes = [1, PYTHON_CHUNK + 7, 16, 17, PYTHON_CHUNK, 3 * PYTHON_CHUNK, 5]
+    assert np.array_equal(chunked(temps, sizes, 300.0, 10.0), lag_batch(temps, 300.0, 10.0))
+    assert np.array_equal(chunked(temps, [5, 100, 3000], 300.0, 10.0), lag_batch(temps, 300.0, 10.0))
+
+
 def test_steady_start_and_first_order_step_response():
     rate_hz, tau_s = 10.0, 30.0
     temps = np.r_[np.full(10, 20.0), np.full(3000, 30.0)]
