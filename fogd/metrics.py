@@ -21,6 +21,16 @@ class ErrorStats:
             return cls(float("nan"), float("nan"))
         return cls(float(np.sqrt(np.mean(errors_dph**2))), float(np.max(np.abs(errors_dph))))
 
+    @classmethod
+    def about_run_means(cls, errors_dph: np.ndarray, runs: np.ndarray) -> "ErrorStats":
+        """Statistics of the errors about each run's own mean: the drift, without the run-to-run turn-on bias
+        that no temperature model predicts (table 3 on several runs, as table 4 is on one)."""
+        errors_dph = np.asarray(errors_dph, dtype=np.float64).copy()
+        runs = np.asarray(runs)
+        for run in np.unique(runs):
+            errors_dph[runs == run] -= errors_dph[runs == run].mean()
+        return cls.of(errors_dph)
+
     def to_dict(self) -> dict[str, float]:
         return {"rmse_dph": self.rmse_dph, "max_dph": self.max_dph}
 

@@ -36,7 +36,7 @@ from fogd.features import TrainingSet
 from fogd.inputs import (DEFAULT_INPUTS_TEXT, InputSpec, clamp_rows, describe_inputs, parse_inputs, shifted_columns,
                          static_columns, temperature_columns)  # fmt: skip
 from fogd.models import FitOptions, Fitted, fit, folds
-from fogd.models.folds import drift_rmse
+from fogd.models.folds import drift_rmse, run_levels
 from fogd.models.least_squares import POLY_TERMS
 from fogd.training import TrainConfig, Trained, prepare, train
 
@@ -93,7 +93,8 @@ def select(runs, config: TrainConfig, sets: list[tuple[InputSpec, ...]], familie
     candidates: list[Candidate] = []
     for specs in sets:
         options = dataclasses.replace(config.fit, temperature_columns=temperature_columns(specs),
-                                      static_columns=static_columns(specs))
+                                      static_columns=static_columns(specs),
+                                      shifted_columns=shifted_columns(specs))
         set_config = dataclasses.replace(config, inputs=specs, fit=options)
         prepared = prepare(runs, set_config, min_warmup_s=common_s)
         data, reference = prepared
@@ -134,12 +135,15 @@ def nested_rmse(method: str, data: TrainingSet, error_dph: np.ndarray, options: 
     them (`shifted`: the temperature columns moved together, fogd.inputs.shifted_columns)."""
     residual = np.empty_like(error_dph)
     inner = dataclasses.replace(options, progress=False)
-    for train_rows, test_rows in folds(data.groups, options.folds):
+    splits = folds(data.groups, options.folds)
+    for train_rows, test_rows in splits:
         x_train = data.x[train_rows]
         fitted = _tuned(method, x_train, error_dph[train_rows], data.groups[train_rows], inner)
         x_test = clamp_rows(data.x[test_rows], x_train.min(axis=0), x_train.max(axis=0), shifted)
         predicted = fitted.y_mean + fitted.y_scale * fitted.estimator.predict((x_test - fitted.x_mean) / fitted.x_scale)
-        residual[test_rows] = predicted - error_dph[test_rows]
+        in_sample = fitted.y_mean + fitted.y_scale * fitted.estimator.predict((x_train - fitted.x_mean) / fitted.x_scale)
+        levels = run_levels(error_dph[train_rows] - in_sample, data.groups[train_rows], data.groups[test_rows])
+        residual[test_rows] = predicted + levels - error_dph[test_rows]
     return drift_rmse(residual, data.groups)
 
 

@@ -16,7 +16,7 @@ import numpy as np
 from fogd import domain, modelfile
 from fogd.features import TrainingSet, block_samples, training_set
 from fogd.frozen import FrozenModel
-from fogd.inputs import DEFAULT_INPUTS_TEXT, InputSpec, parse_inputs, static_columns, temperature_columns
+from fogd.inputs import DEFAULT_INPUTS_TEXT, InputSpec, parse_inputs, shifted_columns, static_columns, temperature_columns
 from fogd.metrics import ErrorStats
 from fogd.models import FitOptions, Fitted, fit
 from fogd.runio import Run
@@ -49,11 +49,12 @@ class Trained:
 
     @property
     def before(self) -> ErrorStats:
-        return ErrorStats.of(self.error_dph)
+        """Table 3's "before": the block errors about each run's mean (turn-on bias is not thermal)."""
+        return ErrorStats.about_run_means(self.error_dph, self.data.groups)
 
     @property
     def after(self) -> ErrorStats:
-        return ErrorStats.of(self.error_dph - self.fit_dph)
+        return ErrorStats.about_run_means(self.error_dph - self.fit_dph, self.data.groups)
 
 
 def prepare(runs: list[Run], config: TrainConfig, min_warmup_s: float = 0.0) -> tuple[TrainingSet, float]:
@@ -68,11 +69,12 @@ def train(runs: list[Run], config: TrainConfig, prepared: tuple[TrainingSet, flo
     data, reference = prepared or prepare(runs, config)
     error = data.rate_dph - reference
     options = dataclasses.replace(config.fit, temperature_columns=temperature_columns(config.inputs),
-                                  static_columns=static_columns(config.inputs))
+                                  static_columns=static_columns(config.inputs),
+                                  shifted_columns=shifted_columns(config.inputs))
     fitted = fit(config.method, data.x, error, data.groups, options)
     created = dt.datetime.now(dt.timezone.utc).replace(microsecond=0).isoformat()
     metrics = {
-        "train_before": ErrorStats.of(error).to_dict(),
+        "train_before": ErrorStats.about_run_means(error, data.groups).to_dict(),
         "cv_rmse_dph": fitted.cv_rmse_dph,
     }
     document = modelfile.document(
@@ -103,7 +105,7 @@ def train(runs: list[Run], config: TrainConfig, prepared: tuple[TrainingSet, flo
     )
     model = modelfile.from_document(document)
     fit_dph, _ = model.predict(data.x)
-    metrics["train_after"] = ErrorStats.of(error - fit_dph).to_dict()
+    metrics["train_after"] = ErrorStats.about_run_means(error - fit_dph, data.groups).to_dict()
     return Trained(document, model, fitted, data, reference, error, fit_dph)
 
 

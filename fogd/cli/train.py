@@ -11,7 +11,7 @@ from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, non_negative_
 from fogd.errors import InputError, UsageError
 from fogd.estimator import EstimatorSettings
 from fogd.inputs import DEFAULT_INPUTS_TEXT, INPUTS_SYNTAX, default_inputs, parse_inputs, warmup_samples
-from fogd.models.folds import drift_rmse
+from fogd.models.folds import MIN_RUNS_LEFT_OUT, drift_rmse
 from fogd.models.svr import TRENDS
 from fogd.runcheck import check_calibration_run
 from fogd.models import FITNESSES, METHODS, FitOptions
@@ -164,13 +164,13 @@ def body(argv: Sequence[str] | None) -> int:
         trained: dict[str, Trained] = {label: best.trained}
         chosen = best.trained
         chosen.document["training"]["selection"] = {
-            "folds": "leave-one-run-out" if len(runs) >= 2 else f"{args.folds} blocked time folds",
+            "folds": "leave-one-run-out" if len(runs) >= MIN_RUNS_LEFT_OUT else f"{args.folds} blocked time folds of every run",
             "chosen": best.row(),
             "candidates": [candidate.row() for candidate in candidates],
         }
         selection = table_lines(candidates, best, markdown=True)
         print(f"\nModel selection (--method auto): nested held-out RMSE of each candidate, "
-              f"{'leave-one-run-out' if len(runs) >= 2 else f'{args.folds} blocked time folds'}")
+              f"{'leave-one-run-out' if len(runs) >= MIN_RUNS_LEFT_OUT else f'{args.folds} blocked time folds of every run'}")
         print("\n".join(table_lines(candidates, best)))
         print(f"chosen: {best.label} (nested held-out RMSE {best.held_out_rmse_dph:.3e} deg/h)")
         held_out_dph = best.held_out_rmse_dph
@@ -195,7 +195,7 @@ def body(argv: Sequence[str] | None) -> int:
         if fitted.unconverged_fits:
             print(f"{method}: {fitted.unconverged_fits} of scikit-learn's fits stopped at their iteration limit "
                   "(scored by held-out error like every other fit)", file=sys.stderr)
-    print(f"\nTable 3: fit on the training runs ({len(chosen.error_dph)} blocks of {args.block_s:g} s)")
+    print(f"\nTable 3: fit on the training runs ({len(chosen.error_dph)} blocks of {args.block_s:g} s, about each run's mean)")
     rows = [("Before compensation", chosen.before)] + [(m, t.after) for m, t in trained.items()]
     print(error_table(rows))
     for holdout in holdouts:
@@ -213,9 +213,14 @@ def body(argv: Sequence[str] | None) -> int:
     return 0
 
 
+def uncompensated_drift_dph(trained: Trained) -> float:
+    """The calibration blocks' drift with no compensation, about each run's mean (as the held-out figure)."""
+    return drift_rmse(trained.error_dph, trained.data.groups)
+
+
 def _never_worse_than_nothing(trained: Trained, held_out_dph: float | None, force: bool) -> None:
     """Refuse (InputError, one line) a model whose held-out drift exceeds the drift it is meant to remove."""
-    uncompensated_dph = drift_rmse(trained.error_dph, trained.data.groups)
+    uncompensated_dph = uncompensated_drift_dph(trained)
     if held_out_dph is None or held_out_dph <= uncompensated_dph:
         return
     message = (f"the model's held-out drift ({held_out_dph:.3e} deg/h) exceeds the uncompensated drift "
@@ -232,7 +237,7 @@ def _summary(trained: Trained) -> list[str]:
     lines = [f"{trained.fitted.method}: " + ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in hyper.items())]
     if trained.fitted.cv_rmse_dph is not None:
         lines.append(f"held-out (cv) drift RMSE: {trained.fitted.cv_rmse_dph:.3e} deg/h (about each run's mean), "
-                     f"uncompensated {drift_rmse(trained.error_dph, trained.data.groups):.3e} deg/h")
+                     f"uncompensated {uncompensated_drift_dph(trained):.3e} deg/h")
     return lines
 
 

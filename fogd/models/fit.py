@@ -14,6 +14,7 @@ import numpy as np
 from sklearn.exceptions import ConvergenceWarning
 
 from fogd.errors import InputError, UsageError
+from fogd.inputs import clamp_rows
 from fogd.models.folds import folds, held_out_rmse
 from fogd.models.least_squares import POLY_TERMS, fit_linear, fit_polynomial, polynomial_terms, temperature_powers
 from fogd.models.rbf import ROWS_PER_CENTRE, fit_rbf_network
@@ -33,6 +34,7 @@ class FitOptions:
     poly_terms: str = "full"  # ls-poly: "full" (the paper's) or "temp" (fogd.models.least_squares)
     temperature_columns: tuple[int, ...] = (0,)  # the inputs that are temperatures (for poly_terms "temp")
     static_columns: tuple[int, ...] = (0,)  # the temperatures that follow the coil (powers in the "poly" trend)
+    shifted_columns: tuple[int, ...] = ()  # temperatures the domain clamp moves together (fogd.inputs.clamp_rows)
     trend_degree: int = 3  # the "poly" trend's highest power
     particles: int = 60
     iterations: int = 100
@@ -92,6 +94,13 @@ def fit(method: str, X: np.ndarray, y: np.ndarray, groups: np.ndarray, options: 
     x_scale = np.where(x_std > 0, x_std, 1.0)
     y_mean, y_scale = float(y.mean()), float(y.std()) or 1.0
     xs, ys = (X - x_mean) / x_scale, (y - y_mean) / y_scale
+
+    def clamp(test: np.ndarray, train: np.ndarray) -> np.ndarray:
+        """Scaled test rows clamped to the training rows' range as the daemon clamps raw inputs."""
+        raw_train = train * x_scale + x_mean
+        raw = clamp_rows(test * x_scale + x_mean, raw_train.min(axis=0), raw_train.max(axis=0), options.shifted_columns)
+        return (raw - x_mean) / x_scale
+
     # scikit-learn warns once per unconverged fit (Lasso, SVR): hundreds of lines in a swarm or a fold loop;
     # they are counted and summarised in one line per family instead (Fitted.unconverged_fits)
     with warnings.catch_warnings(record=True) as caught:
@@ -106,10 +115,10 @@ def fit(method: str, X: np.ndarray, y: np.ndarray, groups: np.ndarray, options: 
             result = fit_pso_svr(
                 xs, ys, splits, y_scale,
                 fitness=options.fitness, trend=options.trend != "none", trend_powers=trend_powers(X.shape[1], options),
-                groups=groups, particles=options.particles, iterations=options.iterations,
+                groups=groups, clamp=clamp, particles=options.particles, iterations=options.iterations,
                 c1=options.c1, c2=options.c2, seed=options.seed, n_jobs=options.n_jobs, progress=options.progress,
             )
-        cv_rmse_dph = y_scale * held_out_rmse(result.estimator, xs, ys, splits, groups)
+        cv_rmse_dph = y_scale * held_out_rmse(result.estimator, xs, ys, splits, groups, clamp)
     unconverged = 0
     for warning in caught:
         if issubclass(warning.category, ConvergenceWarning):

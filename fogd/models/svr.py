@@ -29,7 +29,7 @@ from sklearn.exceptions import ConvergenceWarning
 from sklearn.svm import SVR
 
 from fogd.errors import InputError
-from fogd.models.folds import Split, drift_rmse
+from fogd.models.folds import Clamp, Split, drift_rmse, run_levels
 from fogd.models.least_squares import RunOffsetLeastSquares
 from fogd.models.method import MethodFit
 from fogd.models.pso import pso_minimize
@@ -85,7 +85,7 @@ class TrendSvr(RegressorMixin, BaseEstimator):
 
 def svr_fitness(
     log10_position: np.ndarray, xs: np.ndarray, ys: np.ndarray, splits: list[Split], y_scale: float, trend: bool,
-    groups: np.ndarray | None = None, trend_powers: np.ndarray | None = None,
+    groups: np.ndarray | None = None, trend_powers: np.ndarray | None = None, clamp: Clamp | None = None,
 ) -> float:
     """Drift RMSE in deg/h (about each run's mean) of the model at `log10_position` on the test rows of `splits`;
     +inf if SMO did not converge."""
@@ -98,7 +98,13 @@ def svr_fitness(
                 xs[train], ys[train], None if groups is None else groups[train])
             if model.svr_.fit_status_ != 0:
                 return np.inf
-            residual[test] = model.predict(xs[test]) - ys[test]
+            if train is test:  # the paper's training fitness
+                residual[test] = model.predict(xs[test]) - ys[test]
+                continue
+            x_test = xs[test] if clamp is None else clamp(xs[test], xs[train])
+            residual[test] = model.predict(x_test) - ys[test]
+            if groups is not None:
+                residual[test] += run_levels(ys[train] - model.predict(xs[train]), groups[train], groups[test])
     return float(y_scale * drift_rmse(residual, groups))
 
 
@@ -112,6 +118,7 @@ def fit_pso_svr(
     trend: bool,
     trend_powers: np.ndarray | None = None,
     groups: np.ndarray | None = None,
+    clamp: Clamp | None = None,
     particles: int,
     iterations: int,
     c1: float,
@@ -125,7 +132,7 @@ def fit_pso_svr(
     fitness_splits = [(rows, rows)] if fitness == "train" else splits
     result = pso_minimize(
         functools.partial(svr_fitness, xs=xs, ys=ys, splits=fitness_splits, y_scale=y_scale, trend=trend,
-                          groups=groups, trend_powers=trend_powers),
+                          groups=groups, trend_powers=trend_powers, clamp=clamp),
         LOG10_LOWER,
         LOG10_UPPER,
         particles=particles,
