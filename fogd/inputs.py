@@ -28,7 +28,7 @@ INPUTS_SYNTAX = (
     "comma-separated inputs: 'temp' (temperature, C), 'rate@W' (eq. 16 temperature rate over a W s window, "
     "with --average-s and --step-s), 'lag@TAU' (temperature through a first-order lag of time constant TAU s, a "
     "stand-in for the coil temperature), 'lags@TAU,TAU,...' or 'lags@FIRST..LAST/COUNT' (a bank of such lags, "
-    "the range log-spaced); e.g. temp,rate@50,rate@300,lag@600 or lags@30..10000/6"
+    "the range log-spaced); e.g. temp,rate@50,rate@300,lag@600 or lags@30..3000/5"
 )
 MAX_INPUTS = 16
 
@@ -130,7 +130,7 @@ def _bank_taus(value: str) -> list[float]:
     first, last = float(first_text), float(last_text)
     count = int(count_text) if count_text else 0
     if not (0 < first < last) or count < 2:
-        raise ValueError("a lag range is FIRST..LAST/COUNT with 0 < FIRST < LAST and COUNT >= 2, e.g. 30..10000/6")
+        raise ValueError("a lag range is FIRST..LAST/COUNT with 0 < FIRST < LAST and COUNT >= 2, e.g. 30..3000/5")
     return [float(f"{tau_s:.3g}") for tau_s in np.geomspace(first, last, count)]
 
 

@@ -42,15 +42,24 @@ def _candidate(method: str, rmse: float, inputs: tuple = ()) -> Candidate:
     return Candidate(method, inputs, rmse, {}, 0.0)
 
 
-def test_each_step_up_in_complexity_must_win_by_the_margin():
+def test_each_step_away_from_the_start_must_win_by_the_margin():
+    # without fogd-train's default family among the candidates, the start is the first (linear)
     linear = _candidate("linear", 1.0)
-    assert choose([linear, _candidate("pso-svr", 1.0 - MARGIN / 2)]) is linear
-    better = _candidate("pso-svr", 1.0 - 2 * MARGIN)
+    assert choose([linear, _candidate("ls-poly", 1.0 - MARGIN / 2)]) is linear
+    better = _candidate("ls-poly", 1.0 - 2 * MARGIN)
     assert choose([linear, better]) is better
-    richer_by_little = _candidate("pso-svr", better.held_out_rmse_dph * (1 - MARGIN / 2), inputs=("lag",))
+    richer_by_little = _candidate("ls-poly", better.held_out_rmse_dph * (1 - MARGIN / 2), inputs=("lag",))
     assert choose([linear, better, richer_by_little]) is better
-    richer_by_much = _candidate("rbf-nn", better.held_out_rmse_dph * (1 - 2 * MARGIN), inputs=("lag",))
+    richer_by_much = _candidate("pso-svr", better.held_out_rmse_dph * (1 - 2 * MARGIN), inputs=("lag",))
     assert choose([linear, better, richer_by_little, richer_by_much]) is richer_by_much
+
+
+def test_the_default_family_is_the_start():
+    """pso-svr on the first input set is where auto starts: a simpler family must beat it by the margin."""
+    default = _candidate("pso-svr", 1.0)
+    assert choose([_candidate("linear", 1.0 - MARGIN / 2), default]) is default
+    much_better = _candidate("linear", 1.0 - 2 * MARGIN)
+    assert choose([much_better, default]) is much_better
 
 
 def test_bad_auto_inputs_are_refused():
