@@ -49,7 +49,7 @@ def test_method_auto_prints_and_stores_the_selection(runs, tmp_path):
     assert result.returncode == 0, result.stderr
     assert "Model selection (--method auto)" in result.stdout and "<- chosen" in result.stdout
     selection = json.loads(model.read_text())["training"]["selection"]
-    assert len(selection["candidates"]) == 6  # linear, ls-poly, pso-svr on each set
+    assert len(selection["candidates"]) == 5  # linear, ls-poly, pso-svr; no plain linear on the set with a lag
     assert selection["folds"] == "5 blocked time folds of every run"  # two runs: not one left out
     chosen = selection["chosen"]
     assert f"(nested held-out RMSE {chosen['held_out_rmse_dph']:.3e} deg/h)" in result.stdout
