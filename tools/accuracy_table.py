@@ -16,7 +16,6 @@ fallback column is the share of the held-out samples that the domain guard sent 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import hashlib
 import time
 
