@@ -196,14 +196,14 @@ def assert_same_as_replay(output: np.ndarray, expected: np.ndarray) -> None:
     assert output[:, 6].tolist() == expected[:, 6].tolist()  # flags
 
 
-@pytest.mark.parametrize("protocol", ["kvh-a", "fogd", "ascii"])
-def test_recorded_run_through_emulator_and_fogd_equals_replay(tmp_path, model_path, protocol):
-    samples = run_samples(protocol)
+def stream_through_fogd(tmp_path: Path, model: Path, samples: dict, protocol: str) -> tuple[Path, Fogd, float]:
+    """Send `samples` through the emulator of `protocol` and the real daemon (csv out), stop the daemon with
+    SIGTERM once every row is out; (the output file, the stopped daemon, seconds the stop took)."""
     run_csv, out = tmp_path / "run.csv", tmp_path / "out.csv"
     write_run(run_csv, samples)
     emu = Emu(tmp_path, run_csv, protocol)
     try:
-        fogd = start_fogd(tmp_path, emu.path, model_path, "--protocol", protocol, "--out-format", "csv", "--out", str(out))
+        fogd = start_fogd(tmp_path, emu.path, model, "--protocol", protocol, "--out-format", "csv", "--out", str(out))
         try:
             emu.finish()
             wait_for_rows(out, SAMPLES + 1)
@@ -212,7 +212,15 @@ def test_recorded_run_through_emulator_and_fogd_equals_replay(tmp_path, model_pa
             fogd.kill()
     finally:
         emu.kill()
-    assert status == 0 and took_s < 2.0, fogd.stderr
+    assert status == 0, fogd.stderr
+    return out, fogd, took_s
+
+
+@pytest.mark.parametrize("protocol", ["kvh-a", "fogd", "ascii"])
+def test_recorded_run_through_emulator_and_fogd_equals_replay(tmp_path, model_path, protocol):
+    samples = run_samples(protocol)
+    out, fogd, took_s = stream_through_fogd(tmp_path, model_path, samples, protocol)
+    assert took_s < 2.0, fogd.stderr
     assert out.read_text().splitlines()[0] == ",".join(OUT_COLUMNS)
     assert_same_as_replay(np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2), replayed(tmp_path, model_path, samples))
     counters = fogd.counters()
@@ -444,20 +452,7 @@ def kvh_run_through_fogd_equals_replay(tmp_path: Path, model: Path, seed: int) -
     """Stream a simulated run as KVH Format A through the emulator and the real daemon (csv out), check the
     output equals fogd-replay of the same run, and return replay's rows."""
     samples = run_samples("kvh-a", seed=seed)
-    run_csv, out = tmp_path / "run.csv", tmp_path / "out.csv"
-    write_run(run_csv, samples)
-    emu = Emu(tmp_path, run_csv, "kvh-a")
-    try:
-        fogd = start_fogd(tmp_path, emu.path, model, "--protocol", "kvh-a", "--out-format", "csv", "--out", str(out))
-        try:
-            emu.finish()
-            wait_for_rows(out, SAMPLES + 1)
-            status, _ = fogd.terminate()
-        finally:
-            fogd.kill()
-    finally:
-        emu.kill()
-    assert status == 0, fogd.stderr
+    out, _, _ = stream_through_fogd(tmp_path, model, samples, "kvh-a")
     output, expected = np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2), replayed(tmp_path, model, samples)
     assert_same_as_replay(output, expected)
     return expected
