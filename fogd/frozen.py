@@ -248,10 +248,13 @@ class FrozenModel:
     name: str = "model"
     meta: dict = field(default_factory=dict, compare=False)
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_shifted", shifted_columns(self.inputs))  # clamp_rows' temperature columns
+
     def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(thermal error in deg/h, True where an input was clamped) for raw input rows x of shape (n, d)."""
         x = np.asarray(x, dtype=np.float64).reshape(-1, len(self.inputs))
-        clamped_x = clamp_rows(x, self.domain_min, self.domain_max, self._shifted())
+        clamped_x = clamp_rows(x, self.domain_min, self.domain_max, self._shifted)
         clamped = np.any(clamped_x != x, axis=1)
         if len(clamped_x) >= _UNIQUE_MIN_ROWS and isinstance(self.evaluator, (Polynomial, Svr, RbfNetwork)):
             # Exact: a row's result depends on that row alone, and quantised temperatures (and the rates eq. 16
@@ -273,7 +276,7 @@ class FrozenModel:
         clamped = False
         xs = []
         lows, highs, means, scales = self._point_constants()
-        shifted = self._shifted()
+        shifted = self._shifted
         if shifted:  # clamp_rows, in Python floats
             first = shifted[0]
             value, low, high = x[first], lows[first], highs[first]
@@ -290,13 +293,6 @@ class FrozenModel:
         if not clamped:  # (NaN inputs count as clamped, so a remembered row never holds one)
             object.__setattr__(self, "_last_point", (x, result))
         return result
-
-    def _shifted(self) -> tuple[int, ...]:
-        shifted = self.__dict__.get("_shifted_columns")
-        if shifted is None:
-            shifted = shifted_columns(self.inputs)
-            object.__setattr__(self, "_shifted_columns", shifted)
-        return shifted
 
     def _point_constants(self) -> tuple[tuple, ...]:
         constants = self.__dict__.get("_constants")

@@ -171,7 +171,8 @@ def temperature_columns(specs: tuple[InputSpec, ...]) -> tuple[int, ...]:
 STATIC_MAX_TAU_S = 1000.0  # temperatures that follow the coil: the sensor's and lags up to this time constant
 # fogd-train's default: a bank of lags from half a minute to the housing's hour. A bank reaching 10,000 s was
 # as good with three calibration runs and far worse with two: the slowest lags hardly move within a run and,
-# with one offset per run, are nearly free (held-out drift 1.6-3.9x the noise floor against 1.2-1.8x).
+# with one offset per run, are nearly free (an exploratory least-squares check, not in tools/: held-out drift
+# 1.6-3.9x the noise floor against 1.2-1.8x with paper-train and cooling as the only calibration runs).
 DEFAULT_INPUTS_TEXT = "lags@30..3000/5"
 
 

@@ -33,12 +33,11 @@ import numpy as np
 
 from fogd.errors import InputError
 from fogd.features import TrainingSet
-from fogd.inputs import (DEFAULT_INPUTS_TEXT, InputSpec, clamp_rows, describe_inputs, parse_inputs, shifted_columns,
-                         static_columns, temperature_columns)  # fmt: skip
+from fogd.inputs import DEFAULT_INPUTS_TEXT, InputSpec, clamp_rows, describe_inputs, parse_inputs, shifted_columns
 from fogd.models import FitOptions, Fitted, fit, folds
 from fogd.models.folds import drift_rmse, run_levels
 from fogd.models.least_squares import POLY_TERMS
-from fogd.training import TrainConfig, Trained, prepare, train
+from fogd.training import TrainConfig, Trained, options_for_inputs, prepare, train
 
 # rbf-nn is left out: its Gaussian units have no trend underneath and decay to a constant away from their
 # centres, so on a lag bank's state (six dimensions) they cannot carry the thermal dynamics to a history the
@@ -101,9 +100,7 @@ def select(runs, config: TrainConfig, sets: list[tuple[InputSpec, ...]], familie
     )
     candidates: list[Candidate] = []
     for specs in sets:
-        options = dataclasses.replace(config.fit, temperature_columns=temperature_columns(specs),
-                                      static_columns=static_columns(specs),
-                                      shifted_columns=shifted_columns(specs))
+        options = options_for_inputs(config.fit, specs)
         set_config = dataclasses.replace(config, inputs=specs, fit=options)
         prepared = prepare(runs, set_config, min_warmup_s=common_s)
         data, reference = prepared

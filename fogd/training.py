@@ -68,9 +68,7 @@ def train(runs: list[Run], config: TrainConfig, prepared: tuple[TrainingSet, flo
     """Fit `config.method` to the runs and return the validated model."""
     data, reference = prepared or prepare(runs, config)
     error = data.rate_dph - reference
-    options = dataclasses.replace(config.fit, temperature_columns=temperature_columns(config.inputs),
-                                  static_columns=static_columns(config.inputs),
-                                  shifted_columns=shifted_columns(config.inputs))
+    options = options_for_inputs(config.fit, config.inputs)
     fitted = fit(config.method, data.x, error, data.groups, options)
     created = dt.datetime.now(dt.timezone.utc).replace(microsecond=0).isoformat()
     metrics = {
@@ -107,6 +105,12 @@ def train(runs: list[Run], config: TrainConfig, prepared: tuple[TrainingSet, flo
     fit_dph, _ = model.predict(data.x)
     metrics["train_after"] = ErrorStats.about_run_means(error - fit_dph, data.groups).to_dict()
     return Trained(document, model, fitted, data, reference, error, fit_dph)
+
+
+def options_for_inputs(options: FitOptions, specs: tuple[InputSpec, ...]) -> FitOptions:
+    """`options` with the column roles of these inputs: temperatures, static columns, columns clamped together."""
+    return dataclasses.replace(options, temperature_columns=temperature_columns(specs),
+                               static_columns=static_columns(specs), shifted_columns=shifted_columns(specs))  # fmt: skip
 
 
 def domain_guard_document(data: TrainingSet, error: np.ndarray, fitted: Fitted, options: FitOptions) -> dict[str, Any]:

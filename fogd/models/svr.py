@@ -39,8 +39,8 @@ LOG10_LOWER = np.array([-2.0, -4.0, -2.0])  # log10 of C, epsilon (scaled y), si
 LOG10_UPPER = np.array([4.0, 0.0, 2.0])
 # Over a polynomial trend the SVR is there for what the trend leaves of the static curve, not for the
 # calibration runs' own histories: its kernel is kept broad, sigma >= 10**0.5 input stds. With the full box
-# the swarm's cv fitness picked sigma 0.7 on the lag bank and the held-out drift rose from 1.06-1.57x the
-# noise floor to 1.27-3.16x (tools/accuracy_table.py, lumped coil, fine sensor).
+# the swarm's cv fitness picked a narrow kernel on the lag bank and the held-out drift was 1.23-3.01x the
+# noise floor against 1.03-1.58x (tools/accuracy_table.py --quick, lumped coil, fine sensor).
 POLY_TREND_LOG10_SIGMA_MIN = 0.5
 # Large C with a thin tube and a mid-sized sigma makes libsvm's SMO crawl (tens of seconds for one
 # 300-row fit); such settings are ill-conditioned, so the search gives up on them after this many SMO
