@@ -22,11 +22,13 @@ import logging
 import os
 import threading
 import time
+from collections import deque
 from dataclasses import asdict, dataclass
 from typing import Callable
 
 import numpy as np
 
+from fogd import __version__
 from fogd.compensator import Compensator
 from fogd.errors import FogdError
 from fogd.estimator import SCALAR_CHUNK
@@ -48,7 +50,9 @@ FLUSH_TIMEOUT_S = 1.5
 RESTART_DELAY_S = 0.5
 NOTIFY_STATUS_S = 2.0  # how often systemd's STATUS= line is refreshed
 STATS_EVERY_S = 1.0
+HISTORY_POINTS = 60  # the stats file's history: the latest sample at each of the last 60 stats writes (a minute)
 READER_STALL_S = 2.0  # a reader that has not come round its loop for this long is hung (its waits are <= 0.2 s)
+HISTORY_FIELDS = ("uptime_s", "temp_c", "temp_rate_cps", "comp_dph", "flags")
 _OUT_OF_DOMAIN, _CLAMPED = int(Flag.OUT_OF_DOMAIN), int(Flag.CLAMPED)
 
 
@@ -187,6 +191,7 @@ class Daemon:
         self._reload_thread: threading.Thread | None = None
         self._reload_ready: Reload | None = None
         self._stall_logged = False
+        self.history: deque[tuple[float, ...]] = deque(maxlen=HISTORY_POINTS)
 
     @property
     def ring(self) -> Ring:
@@ -233,6 +238,9 @@ class Daemon:
                     self.notifier.send(f"STATUS={self.short_status()}")
                     next_notify_s = now_s + NOTIFY_STATUS_S
                 if self.stats_path is not None and now_s >= next_stats_s:
+                    latest = self.latest
+                    self.history.append((now_s - self.started_s, latest.temp_c, latest.temp_rate_cps, latest.comp_dph,
+                                         float(latest.flags)))  # fmt: skip
                     write_stats(self.stats_path, self.snapshot())
                     next_stats_s = now_s + STATS_EVERY_S
                 self.reader.data_ready.wait(IDLE_WAIT_S)
@@ -381,7 +389,8 @@ class Daemon:
             f"ring overruns {self.ring.overruns} | reconnects {reader.reconnects} | "
             f"latency {1e3 * self.latency.last_s:.1f} ms (max {1e3 * self.latency.max_s:.1f}) | "
             f"T {latest.temp_c:.2f} C dT/dt {latest.temp_rate_cps:+.5f} C/s comp {latest.comp_dph:+.4f} deg/h "
-            f"({describe(latest.flags)}) | {_shares_text(self.domain_shares())} | model {self.model.name}"
+            f"({describe(latest.flags)}) | {_shares_text(self.domain_shares())} | model {self.model.name} | "
+            f"fogd {__version__}"
         )
 
     def short_status(self) -> str:
@@ -398,6 +407,7 @@ class Daemon:
         now_s = time.monotonic()
         return {
             **self.info,
+            "version": __version__,
             "pid": os.getpid(),
             "running": not self._stop.is_set(),
             "time_unix_s": time.time(),
@@ -408,6 +418,7 @@ class Daemon:
             "latency_s": {"last": self.latency.last_s, "max_since_status": self.latency.max_s},
             "counters": self.counters_dict(),
             "domain_shares": self.domain_shares(),
+            "history": {name: [point[i] for point in list(self.history)] for i, name in enumerate(HISTORY_FIELDS)},
             "status": self.status_line(),
         }
 

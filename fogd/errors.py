@@ -24,10 +24,22 @@ class InputError(FogdError):
     exit_status = 65  # EX_DATAERR
 
 
+class NoInputError(InputError):
+    """An input file (run CSV, profile) that does not exist or cannot be read."""
+
+    exit_status = 66  # EX_NOINPUT
+
+
 class ModelFileError(FogdError):
-    """A model file that is missing, corrupt, hostile or of another version."""
+    """A model file that is corrupt, hostile or of another version."""
 
     exit_status = 65  # EX_DATAERR
+
+
+class NoModelFileError(ModelFileError):
+    """A model file that does not exist or cannot be read."""
+
+    exit_status = 66  # EX_NOINPUT
 
 
 class ConfigError(FogdError):

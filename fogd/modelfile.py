@@ -24,7 +24,7 @@ import numpy as np
 
 from fogd import __version__
 from fogd.domain import DomainGuard
-from fogd.errors import ModelFileError, describe_os_error
+from fogd.errors import ModelFileError, NoModelFileError, describe_os_error
 from fogd.estimator import EstimatorSettings
 from fogd.frozen import FrozenModel, build_evaluator
 from fogd.inputs import KINDS, TEMP_LAG, TEMP_RATE, InputSpec
@@ -115,7 +115,7 @@ def load(path: str | Path) -> FrozenModel:
         with open(path, "rb") as stream:
             data = stream.read(MAX_MODEL_BYTES + 1)
     except OSError as error:
-        raise ModelFileError(f"cannot read model: {describe_os_error(error)}") from None
+        raise NoModelFileError(f"cannot read model: {describe_os_error(error)}") from None
     if len(data) > MAX_MODEL_BYTES:
         raise ModelFileError(f"{source}: larger than {MAX_MODEL_BYTES // 2**20} MiB; not a fogd model file")
     if not data.strip():

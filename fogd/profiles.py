@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from fogd.errors import InputError, UsageError, describe_os_error
+from fogd.errors import InputError, NoInputError, UsageError, describe_os_error
 
 MIN_TEMP_C = -60.0
 MAX_TEMP_C = 125.0
@@ -148,7 +148,7 @@ def load(path: str | Path) -> Profile:
     try:
         text = Path(path).read_text(encoding="utf-8")
     except OSError as error:
-        raise InputError(f"cannot read profile {describe_os_error(error)}") from None
+        raise NoInputError(f"cannot read profile {describe_os_error(error)}") from None
     except UnicodeDecodeError:
         raise InputError(f"{path}: not a text file (expected YAML)") from None
     try:

@@ -19,7 +19,7 @@ from typing import IO, Iterator
 
 import numpy as np
 
-from fogd.errors import InputError, describe_os_error
+from fogd.errors import InputError, NoInputError, describe_os_error
 
 RUN_COLUMNS = ("t_s", "rate_dph", "temp_c")
 MAX_GAP_PERIODS = 5.0  # a time step longer than this many sample periods is a gap, not jitter
@@ -57,7 +57,7 @@ def read_run(path: str | Path, *, max_gap_periods: float = MAX_GAP_PERIODS) -> R
     try:
         data = Path(path).read_bytes()
     except OSError as error:
-        raise InputError(describe_os_error(error)) from None
+        raise NoInputError(describe_os_error(error)) from None
     if not data.strip():
         raise InputError(f"{path}: empty file (expected a header line {','.join(RUN_COLUMNS)} and data rows)")
     header_line, names = _header(path, data)

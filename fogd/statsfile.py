@@ -13,6 +13,7 @@ import os
 import time
 from typing import Any
 
+from fogd import __version__
 from fogd.errors import DeviceError, describe_os_error
 
 log = logging.getLogger("fogd.stats")
@@ -49,6 +50,14 @@ def write_stats(path: str, snapshot: dict[str, Any]) -> bool:
         return False
     _failed_paths.discard(path)
     return True
+
+
+def default_path(setting: str | None, instance: str) -> str:
+    """The stats file `fogd --status` and `fogd-top` read: the stats_file setting, or for 'auto' (and 'none')
+    <runtime dir>/<instance>.json, where a service's daemon writes it."""
+    from fogd.config import RUNTIME_DIR
+
+    return setting if setting not in ("auto", None) else os.path.join(RUNTIME_DIR, f"{instance}.json")
 
 
 def read_stats(path: str) -> dict[str, Any]:
@@ -96,7 +105,7 @@ def describe(snapshot: dict[str, Any]) -> str:
 
     return "\n".join(
         [
-            f"fogd pid {snapshot.get('pid')} {state}, up {number(snapshot.get('uptime_s'), '.0f')} s, "
+            f"fogd {snapshot.get('version', '?')} pid {snapshot.get('pid')} {state}, up {number(snapshot.get('uptime_s'), '.0f')} s, "
             f"port {snapshot.get('port', '?')} {'connected' if snapshot.get('connected') else 'LOST (waiting for it)'}",
             f"model {model.get('name')} ({model.get('method')}); T {number(latest.get('temp_c'), '.2f')} C, "
             f"dT/dt {number(latest.get('temp_rate_cps'), '+.5f')} C/s, comp {number(latest.get('comp_dph'), '+.4f')} deg/h, "

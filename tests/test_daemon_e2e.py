@@ -75,6 +75,8 @@ class Fogd:
     """The real daemon in a subprocess, its stderr in a file."""
 
     def __init__(self, tmp_path: Path, *args: str) -> None:
+        if "--out" not in args:  # stdout is not a terminal here, where fogd refuses to default to it
+            args = (*args, "--out", os.devnull)
         self.stderr_path = tmp_path / "fogd.stderr"
         with open(self.stderr_path, "wb") as stderr:
             self.process = subprocess.Popen([*FOGD, *args], stdout=subprocess.DEVNULL, stderr=stderr)

@@ -7,11 +7,18 @@ import math
 import sys
 from typing import Callable, NoReturn, Sequence
 
+from fogd import __version__
 from fogd.errors import FogdError, UsageError
 
 
 class ArgumentParser(argparse.ArgumentParser):
-    """argparse whose errors are one line naming the option, and a UsageError (exit 2)."""
+    """argparse whose errors are one line naming the option, and a UsageError (exit 2); every command gets
+    `--version`."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.add_argument("--version", action="version", version=f"%(prog)s {__version__}",
+                          help="print the program's name and fogd's version, and exit")  # fmt: skip
 
     def error(self, message: str) -> NoReturn:
         raise UsageError(f"{message} (see {self.prog} --help)")
@@ -42,7 +49,9 @@ def run(prog: str, body: Callable[[Sequence[str] | None], int], argv: Sequence[s
 
 def number_in(low: float, high: float, unit: str = "", *, low_open: bool = False) -> Callable[[str], float]:
     """An argparse type: a finite number within low..high (above low, when `low_open`)."""
-    where = f"{low:g}..{high:g}{' ' + unit if unit else ''}"
+    unit_text = f" {unit}" if unit else ""
+    bounds = [f"above {low:g}" if low_open else f"at least {low:g}"] + ([f"at most {high:g}"] if math.isfinite(high) else [])
+    where = " and ".join(bounds) + unit_text
 
     def parse(text: str) -> float:
         try:
@@ -50,7 +59,7 @@ def number_in(low: float, high: float, unit: str = "", *, low_open: bool = False
         except ValueError:
             raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
         if not (math.isfinite(value) and low <= value <= high) or (low_open and value == low):
-            raise argparse.ArgumentTypeError(f"{text!r} is outside {where}" + (f" (and above {low:g})" if low_open else ""))
+            raise argparse.ArgumentTypeError(f"{text!r} must be {where}")
         return value
 
     return parse

@@ -16,11 +16,12 @@ import threading
 from pathlib import Path
 from typing import Any, Sequence
 
-from fogd import config, modelfile, profiles, protocols, statsfile
+from fogd import __version__, config, modelfile, protocols, statsfile
 from fogd.cli.common import ArgumentParser, run
 from fogd.config import AXES, OPTION_BY_KEY, OPTIONS
 from fogd.daemon import RING_CAPACITY, Daemon, Reload
 from fogd.errors import ConfigError, DeviceError
+from fogd.profiles import HOUR_S, Profile
 from fogd.flags import Flag
 from fogd.lexer import Lexer
 from fogd.outputs import Formatter, Writer, open_sink
@@ -31,9 +32,18 @@ from fogd.serialio import PortOpener, open_port
 
 PROG = "fogd"
 DEMO_MODEL = Path(__file__).resolve().parent.parent / "data" / "demo-model.json"
-DEMO_PROFILE = "paper-test"
+# The chamber ramps 0 -> 30 C and back with no soak first, and the demo starts 20 minutes in, when the gyro's
+# housing (which lags the air) is already warming: temperature, its rate and the compensation move at once.
+DEMO_PROFILE = Profile("demo-cycle", ((0.0, 0.0), (2.0 * HOUR_S, 30.0), (0.5 * HOUR_S, 30.0), (2.0 * HOUR_S, 0.0)))
+DEMO_START_S = 1200.0
 DEMO_RATE_HZ = 100.0
-DEMO_SPEED = 60.0  # three chamber hours in three minutes
+DEMO_SPEED = 60.0  # four and a half chamber hours in four and a half minutes
+DEMO_LINE_EVERY_S = 5.0  # when stderr is not a terminal: a plain line this often instead of the live line
+DEMO_LEGEND = (
+    "columns: rate = the gyro's z rate as read (deg/h); comp = the thermal error the model predicts from the "
+    "temperature history (deg/h); compensated = rate - comp, what the navigation computer receives; "
+    "T = the temperature sensor (C); dT/dt = its rate (C/s); frames = frames read; drops = frames lost or corrupt"
+)
 EXIT_NOT_RUNNING = 3  # `fogd --status`: no live daemon (as LSB status actions say)
 log = logging.getLogger("fogd.daemon")
 
@@ -49,7 +59,8 @@ def parser() -> ArgumentParser:
         f"{config.CONFIG_DIR}/INSTANCE.yaml or {config.CONFIG_DIR}/fogd.yaml is read when it exists "
         f"(${config.CONFIG_DIR_ENV} moves that directory). Output flags bits: "
         f"{', '.join(f'{flag.name}={int(flag)}' for flag in Flag)}. Exit status: 0 ok, 2 usage, 3 --status: "
-        "not running, 65 bad model file, 74 port, output or stats file cannot be opened, 78 bad config.",
+        "not running, 65 bad model file, 74 port, output or stats file cannot be opened, 78 bad config (also: "
+        "no out set while stdout is not a terminal, or out '-' while stdout is the journal).",
     )
     for option in OPTIONS:
         p.add_argument(
@@ -67,7 +78,7 @@ def parser() -> ArgumentParser:
                    help="name of this daemon (e.g. ttyUSB0 for fogd@ttyUSB0): picks NAME.yaml in the config "
                    "directory and the default stats file (default: %(default)s)")  # fmt: skip
     p.add_argument("--status", action="store_true", help="print the running daemon's stats file and exit "
-                   "(0 running, 3 not running)")  # fmt: skip
+                   "(0 running; 3 not running: no stats file, or a stale one; 74 stats file unreadable)")  # fmt: skip
     p.add_argument("--demo", action="store_true", help="no hardware: compensate the built-in emulator with the bundled model")
     p.add_argument("-v", "--verbose", action="store_true", help="log debug detail")
     p.add_argument("-q", "--quiet", action="store_true", help="log warnings and errors only (no status lines)")
@@ -103,27 +114,31 @@ def demo(settings: dict[str, Any], protocol: protocols.Protocol, model, *, out_g
     compensates it and prints a live status line every second. Output is discarded unless --out is given."""
     from fogd.emulator import Emulator, SimSource
 
-    source = SimSource(profiles.builtin(DEMO_PROFILE), DEMO_RATE_HZ, seed=1)
+    source = Later(SimSource(DEMO_PROFILE, DEMO_RATE_HZ, seed=1), DEMO_START_S)
     emulator = Emulator(source, protocol.name, speed=DEMO_SPEED, wait_reader=True, drain_timeout_s=0.0)
     path = emulator.start()
     print(
-        f"fogd demo: simulated FOG on {path} ({DEMO_PROFILE} chamber profile at {DEMO_SPEED:g}x real time, "
-        f"{DEMO_RATE_HZ:g} Hz), model {model.name}; Ctrl-C to stop",
+        f"fogd demo: simulated FOG on {path} (chamber {DEMO_PROFILE.describe()}; from {DEMO_START_S:g} s, "
+        f"at {DEMO_SPEED:g}x real time, "
+        f"{DEMO_RATE_HZ:g} Hz), model {model.name}; Ctrl-C to stop\n{DEMO_LEGEND}",
         file=sys.stderr,
     )
     settings = {**settings, "port": path, "rate_hz": DEMO_RATE_HZ, "out": settings["out"] if out_given else os.devnull}
     finished = threading.Event()
 
+    terminal = sys.stderr.isatty()
+
     def live(daemon: Daemon) -> None:
-        while not finished.wait(1.0):
+        # a terminal gets one line rewritten in place; a file or pipe gets plain lines, no \r or escapes
+        while not finished.wait(1.0 if terminal else DEMO_LINE_EVERY_S):
             latest, lexer = daemon.latest, daemon.reader.lexer.counters
             drops = lexer.bad_crc + lexer.truncated + lexer.bad_line + daemon.ring.overruns
-            print(
-                f"\rrate {latest.rate_dph:+9.3f}  comp {latest.comp_dph:+8.3f}  compensated {latest.rate_comp_dph:+9.3f} "
+            line = (
+                f"rate {latest.rate_dph:+9.3f}  comp {latest.comp_dph:+8.3f}  compensated {latest.rate_comp_dph:+9.3f} "
                 f"deg/h  T {latest.temp_c:6.2f} C  dT/dt {latest.temp_rate_cps:+.5f} C/s  frames {lexer.frames_ok}  "
-                f"drops {drops}\x1b[K",
-                end="", file=sys.stderr, flush=True,
+                f"drops {drops}"
             )  # fmt: skip
+            print(f"\r{line}\x1b[K" if terminal else line, end="" if terminal else "\n", file=sys.stderr, flush=True)
 
     def start_live(daemon: Daemon) -> None:
         threading.Thread(target=live, args=(daemon,), name="fogd-demo-status", daemon=True).start()
@@ -132,9 +147,24 @@ def demo(settings: dict[str, Any], protocol: protocols.Protocol, model, *, out_g
         return serve(settings, protocol, model, on_daemon=start_live)
     finally:
         finished.set()
-        print(file=sys.stderr)
+        if terminal:
+            print(file=sys.stderr)
         emulator.stop()
         emulator.join(1.0)
+
+
+class Later:
+    """A source of samples (fogd.emulator's SimSource) from `start_s` on, its time starting at 0 there."""
+
+    def __init__(self, source, start_s: float) -> None:
+        self.source = source
+        self.first = int(round(start_s * source.rate_hz))
+        self.rate_hz = source.rate_hz
+        self.rows = source.rows - self.first
+
+    def columns(self, start: int, stop: int):
+        t_s, rate_dph, temp_c = self.source.columns(start + self.first, stop + self.first)
+        return t_s - self.first / self.rate_hz, rate_dph, temp_c
 
 
 def configure_logging(verbose: bool, quiet: bool) -> None:
@@ -143,9 +173,12 @@ def configure_logging(verbose: bool, quiet: bool) -> None:
 
 
 def status(args: argparse.Namespace) -> int:
-    """`fogd --status`: print the stats file of the daemon this command line names."""
-    setting = getattr(args, "stats_file", "auto")
-    path = setting if setting not in ("auto", None) else os.path.join(config.RUNTIME_DIR, f"{args.instance}.json")
+    """`fogd --status`: print the stats file of the daemon this command line names; no stats file at all is
+    "not running" (3, as LSB status actions say), an unreadable one an I/O error (74)."""
+    path = statsfile.default_path(getattr(args, "stats_file", "auto"), args.instance)
+    if not os.path.exists(path):
+        print(f"fogd: not running ({path}: no stats file; start fogd, or give --stats-file or --instance)")
+        return EXIT_NOT_RUNNING
     snapshot = statsfile.read_stats(path)
     print(statsfile.describe(snapshot))
     return 0 if statsfile.is_live(snapshot) else EXIT_NOT_RUNNING
@@ -163,6 +196,29 @@ def body(argv: Sequence[str] | None) -> int:
     if args.demo:
         return demo(settings, protocol, model, out_given=sources.given("out"))
     return serve(settings, protocol, model, sources=sources)
+
+
+def stdout_is_journal() -> bool:
+    """Whether stdout is systemd's journal stream (systemd sets $JOURNAL_STREAM to its device:inode)."""
+    try:
+        device, inode = (int(part) for part in os.environ.get("JOURNAL_STREAM", "").split(":"))
+        info = os.fstat(sys.stdout.fileno())
+    except (ValueError, OSError):
+        return False
+    return (info.st_dev, info.st_ino) == (device, inode)
+
+
+def check_output(settings: dict[str, Any], *, out_given: bool) -> None:
+    """Refuse an output that makes no sense where fogd runs: stdout by default when it is not a terminal (a
+    service's stdout is the journal: binary frames there help nobody), or stdout on purpose into the journal."""
+    choices = "a serial port (out: /dev/ttyUSB1), pty:/run/fogd/fog0 for a program on this machine, or a file"
+    if settings["out"] != "-":
+        return
+    if stdout_is_journal():
+        raise ConfigError(f"key 'out' is '-' but stdout is the journal; set out: to {choices}")
+    if not out_given and not sys.stdout.isatty():
+        raise ConfigError(f"key 'out' is not set and stdout is not a terminal; set out: to {choices} "
+                          "(or --out - to write to stdout on purpose)")  # fmt: skip
 
 
 def make_protocol(settings: dict[str, Any]) -> protocols.Protocol:
@@ -194,6 +250,8 @@ def serve(settings: dict[str, Any], protocol: protocols.Protocol, model, *, on_d
     stats_path = config.stats_path(settings["stats_file"], instance)
     port = open_port(path, baud)
     try:
+        if sources is not None:  # not the demo, which discards its output unless told otherwise
+            check_output(settings, out_given=sources.given("out"))
         sink = open_sink(settings["out"], baud)
     except BaseException:
         port.close()
