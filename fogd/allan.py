@@ -21,6 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fogd.errors import DeviceError, describe_os_error
+
 BIAS_INSTABILITY_FACTOR = 0.664
 ARW_FIT_MAX_TAU_S = 10.0  # short-tau points where white rate noise dominates a FOG's curve
 MAX_TAU_FRACTION = 0.1
@@ -102,7 +104,8 @@ def summary_lines(results: dict[str, AllanResult]) -> list[str]:
 
 
 def plot(path: str, results: dict[str, AllanResult], title: str) -> None:
-    """Log-log figure of the curves, written as PNG (matplotlib, Agg backend)."""
+    """Log-log figure of the curves, written as PNG at `path` (matplotlib, Agg backend); DeviceError when it
+    cannot be written."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -120,6 +123,8 @@ def plot(path: str, results: dict[str, AllanResult], title: str) -> None:
     axis.legend(fontsize=8)
     figure.tight_layout()
     try:
-        figure.savefig(path, dpi=120)
+        figure.savefig(path, dpi=120, format="png")  # at `path` as given: no ".png" appended behind the caller's back
+    except OSError as error:
+        raise DeviceError(f"cannot write the Allan figure {describe_os_error(error)}") from None
     finally:
         plt.close(figure)

@@ -10,6 +10,7 @@ when one exists; `FOGD_CONFIG_DIR` defaults to /etc/fogd. A file named with `--c
 from __future__ import annotations
 
 import argparse
+import difflib
 import ipaddress
 import math
 import os
@@ -158,9 +159,21 @@ def load(path: str) -> dict[str, Any]:
     for key, value in document.items():
         option = OPTION_BY_KEY.get(key) if isinstance(key, str) else None
         if option is None:
-            raise ConfigError(f"{path}: unknown key {str(key)[:40]!r}; known keys: {', '.join(OPTION_BY_KEY)}")
+            raise ConfigError(f"{path}: unknown key {str(key)[:40]!r}{_did_you_mean(key)}; known keys: "
+                              f"{', '.join(OPTION_BY_KEY)}")  # fmt: skip
         settings[key] = _value(path, option, value)
     return settings
+
+
+def _did_you_mean(key: Any) -> str:
+    """' (did you mean out_format?)' for a key spelt with dashes, like the long option, or mistyped."""
+    if not isinstance(key, str):
+        return ""
+    underscored = key.strip().lstrip("-").replace("-", "_").lower()
+    if underscored in OPTION_BY_KEY:
+        return f" (did you mean {underscored}? keys use underscores where options use dashes)"
+    close = difflib.get_close_matches(underscored, OPTION_BY_KEY, n=1, cutoff=0.75)
+    return f" (did you mean {close[0]}?)" if close else ""
 
 
 def _value(path: str, option: Option, value: Any) -> Any:

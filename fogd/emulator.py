@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import fcntl
 import json
+import logging
 import math
 import os
 import random
@@ -33,6 +34,8 @@ from fogd.runio import Run
 
 if TYPE_CHECKING:
     from fogd.simulator import SimParams
+
+log = logging.getLogger("fogd-emu")
 
 TICK_S = 0.001  # real-time pacing writes every frame that is due, at most once per tick
 FAST_BATCH_SAMPLES = 64
@@ -330,6 +333,7 @@ class Emulator:
         self._ledger: IO[str] | None = None
         self._ledger_index = 0
         self._schedule_shift_s = 0.0
+        self._said_no_reader = False
         self._unsent = b""  # drop_when_full: the rest of a frame the pty took only part of
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -590,24 +594,30 @@ class Emulator:
         view = memoryview(data)
         blocked_since = None
         fd = self.pty.master_fd
-        while view:
-            try:
-                written = os.write(fd, view)
-            except BlockingIOError:
-                written = 0
-            if written:
-                view = view[written:]
-                continue
-            if blocked_since is None:
-                blocked_since = time.monotonic()
-            if self._stop.is_set():
-                raise _Stopped
-            if not self.pty.wait_writable(POLL_MS):
-                self._stop.wait(NO_READER_RETRY_S)  # no reader: poll returns at once with POLLHUP
-        if blocked_since is not None:
-            blocked_s = time.monotonic() - blocked_since
-            self.stats.backpressure_s += blocked_s
-            self._schedule_shift_s += blocked_s
+        try:
+            while view:
+                try:
+                    written = os.write(fd, view)
+                except BlockingIOError:
+                    written = 0
+                if written:
+                    view = view[written:]
+                    continue
+                if blocked_since is None:
+                    blocked_since = time.monotonic()
+                    if not self._said_no_reader and not self.pty.reader_present():
+                        log.warning("no reader on %s: the pty is full, waiting for one to open it "
+                                    "(--drop-when-full drops frames instead)", self.pty.path)  # fmt: skip
+                        self._said_no_reader = True
+                if self._stop.is_set():
+                    raise _Stopped
+                if not self.pty.wait_writable(POLL_MS):
+                    self._stop.wait(NO_READER_RETRY_S)  # no reader: poll returns at once with POLLHUP
+        finally:  # a stop while blocked still counts the time it waited
+            if blocked_since is not None:
+                blocked_s = time.monotonic() - blocked_since
+                self.stats.backpressure_s += blocked_s
+                self._schedule_shift_s += blocked_s
 
     def _wait_for_reader(self) -> float:
         """With wait_reader, block until the slave is open; returns the seconds waited."""

@@ -221,12 +221,12 @@ def _hysteresis_figure(trained: dict[str, Trained]) -> Figure:
             rates: list[float | None] = [None]
         else:
             limit = float(np.max(np.abs(x[:, rate_col]))) or 1.0
-            dots = axis.scatter(x[:, temp_col], t.error_dph, c=x[:, rate_col] * 60.0, cmap="coolwarm",
-                                vmin=-limit * 60.0, vmax=limit * 60.0, s=16, edgecolors="0.4", linewidths=0.3)  # fmt: skip
-            figure.colorbar(dots, ax=axis, label="temperature rate (C/min)")
-            decimals = max(0, 1 - int(np.floor(np.log10(limit * 60.0))))  # two significant digits of the range
-            per_min = np.round(np.percentile(x[:, rate_col], [5, 50, 95]) * 60.0, decimals) + 0.0
-            rates = sorted({float(q) / 60.0 for q in per_min})
+            dots = axis.scatter(x[:, temp_col], t.error_dph, c=x[:, rate_col], cmap="coolwarm",
+                                vmin=-limit, vmax=limit, s=16, edgecolors="0.4", linewidths=0.3)  # fmt: skip
+            figure.colorbar(dots, ax=axis, label="temperature rate (C/s)")
+            decimals = max(0, 1 - int(np.floor(np.log10(limit))))  # two significant digits of the range
+            quantiles = np.round(np.percentile(x[:, rate_col], [5, 50, 95]), decimals) + 0.0
+            rates = sorted({float(q) for q in quantiles})
         grid = np.linspace(x[:, temp_col].min(), x[:, temp_col].max(), 200)
         for rate in rates:
             rows_x = np.tile(np.median(x, axis=0), (grid.size, 1))
@@ -235,7 +235,7 @@ def _hysteresis_figure(trained: dict[str, Trained]) -> Figure:
                 label, colour = f"{method} model", "k"
             else:
                 rows_x[:, rate_col] = rate
-                label = f"model at {rate * 60.0:+.{decimals}f} C/min"
+                label = f"model at {rate:+.{decimals}f} C/s"
                 colour = plt.get_cmap("coolwarm")(0.5 + 0.5 * rate / limit)
             axis.plot(grid, t.model.predict(rows_x)[0], color=colour, lw=2.0, label=label,
                       path_effects=_outline())  # fmt: skip

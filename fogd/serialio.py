@@ -77,6 +77,8 @@ def describe_open_error(path: str, error: serial.SerialException) -> str:
     text = str(error)
     if code in (errno.EWOULDBLOCK, errno.EAGAIN) or "exclusively lock" in text:
         return f"{path}: port busy (another program has it open; stop it or choose another port)"
+    if code == errno.ENOTTY or "Inappropriate ioctl" in text:
+        return f"{path}: not a serial port (not a terminal device; check the path, e.g. /dev/ttyUSB0)"
     if code == errno.ENOENT:
         return f"{path}: no such port (is the device plugged in? check the path)"
     if code in (errno.EACCES, errno.EPERM):

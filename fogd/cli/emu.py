@@ -6,6 +6,7 @@ path(s) on stdout and the summary on stderr, and stopping cleanly on SIGTERM/SIG
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 import signal
 import sys
@@ -108,6 +109,7 @@ def build(args: argparse.Namespace) -> Emulator:
 
 
 def body(argv: Sequence[str] | None) -> int:
+    logging.basicConfig(stream=sys.stderr, level=logging.WARNING, format="%(name)s: %(message)s")
     emulator = build(parser().parse_args(argv))
     print(emulator.start(), flush=True)
     stop = lambda signum, frame: emulator.stop()  # noqa: E731

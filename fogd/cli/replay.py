@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import os
 import sys
 from typing import Sequence
 
+import numpy as np
+
 from fogd import modelfile
+from fogd.errors import ModelFileError, NoModelFileError, UsageError
 from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, non_negative_float, positive_float, run
 from fogd.flags import Flag
 from fogd.allan import plot, summary_lines
@@ -53,19 +57,22 @@ def parser() -> ArgumentParser:
 
 def body(argv: Sequence[str] | None) -> int:
     args = parser().parse_args(argv)
-    model = modelfile.load(args.model)
+    if args.allan_plot and os.path.isdir(args.allan_plot):
+        raise UsageError(f"--allan-plot {args.allan_plot}: a directory; give a file name such as allan.png")
+    model = load_model(args.model, args.run)
     recorded = read_run(args.run)
     result = replay(model, recorded)
     if args.output:
         write_csv(
             args.output,
             {
+                # + 0.0 turns -0.0 into 0.0: "-0" in a CSV reads as a sign where there is none
                 "t_s": recorded.t_s,
-                "rate_dph": recorded.rate_dph,
-                "temp_c": recorded.temp_c,
-                "temp_rate_cps": result.temp_rate_cps,
-                "comp_dph": result.comp_dph,
-                "rate_comp_dph": result.rate_comp_dph,
+                "rate_dph": recorded.rate_dph + 0.0,
+                "temp_c": recorded.temp_c + 0.0,
+                "temp_rate_cps": np.asarray(result.temp_rate_cps) + 0.0,
+                "comp_dph": np.asarray(result.comp_dph) + 0.0,
+                "rate_comp_dph": np.asarray(result.rate_comp_dph) + 0.0,
                 "flags": result.flags,
             },
             OUTPUT_FORMATS,
@@ -91,6 +98,17 @@ def body(argv: Sequence[str] | None) -> int:
             plot(args.allan_plot, curves, f"{recorded.name}: overlapping Allan deviation ({model.method})")
             print(f"wrote {args.allan_plot}", file=sys.stderr)
     return 0
+
+
+def load_model(path: str, run_path: str):
+    """The model; when it will not load and the arguments look swapped (a CSV first, a .json second), the
+    one-line error says so and gives the usage."""
+    try:
+        return modelfile.load(path)
+    except ModelFileError as error:
+        if isinstance(error, NoModelFileError) or not run_path.lower().endswith(".json"):
+            raise
+        raise UsageError(f"{error}; the arguments look swapped: usage {PROG} MODEL.json RUN.csv") from None
 
 
 def _settling(table: ReplayTable, settle_s: float) -> str:

@@ -224,7 +224,7 @@ class _Column:
 
     def __getitem__(self, rows: slice) -> np.ndarray:
         start, stop, _ = rows.indices(len(self))
-        return self.blocks.get(self.name, start, stop)
+        return self.blocks.get(self.name, start, stop) + 0.0  # -0.0 (a sensor rounding to 0 from below) as 0
 
 
 def _structure(params: SimParams) -> str:

@@ -233,7 +233,9 @@ def _never_worse_than_nothing(trained: Trained, held_out_dph: float | None, forc
 
 
 def _summary(trained: Trained) -> list[str]:
-    hyper = trained.fitted.hyperparameters
+    hyper = dict(trained.fitted.hyperparameters)
+    if "epsilon_dph" in hyper:  # the tube in deg/h says what the scaled epsilon says; one of them is enough
+        hyper.pop("epsilon", None)
     lines = [f"{trained.fitted.method}: " + ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in hyper.items())]
     if trained.fitted.cv_rmse_dph is not None:
         lines.append(f"held-out (cv) drift RMSE: {trained.fitted.cv_rmse_dph:.3e} deg/h (about each run's mean), "
