@@ -57,6 +57,31 @@ def test_record_writes_the_emulators_values(tmp_path, protocol):
     assert "Traceback" not in (tmp_path / "record.stderr").read_text()
 
 
+def test_record_decimate_writes_the_means_of_groups(tmp_path):
+    samples = run_samples("fogd")
+    run_csv = tmp_path / "run.csv"
+    write_run(run_csv, samples)
+    emu = Emu(tmp_path, run_csv, "fogd")
+    process, stderr = record(tmp_path, emu.path, "--protocol", "fogd", "--decimate", "4")
+    groups = len(samples["t_s"]) // 4
+    try:
+        emu.finish()
+        wait_for_rows(tmp_path / "rec.csv", groups + 1)
+        assert stop(process) == 0
+    finally:
+        emu.kill()
+        if process.poll() is None:
+            process.kill()
+        stderr.close()
+    recorded = read_run(tmp_path / "rec.csv")
+    assert recorded.rows == groups
+    whole = groups * 4
+    for column in ("t_s", "rate_dph", "temp_c"):
+        expected = samples[column][:whole].reshape(-1, 4).mean(axis=1)
+        np.testing.assert_allclose(getattr(recorded, column), expected, rtol=1e-12, atol=1e-6, err_msg=column)
+    assert recorded.rate_hz == pytest.approx(RATE_HZ / 4)
+
+
 def test_record_survives_an_unplug(tmp_path):
     samples = run_samples("kvh-a")
     run_csv = tmp_path / "run.csv"
