@@ -23,7 +23,7 @@ import os
 import threading
 import time
 from collections import deque
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Callable
 
 import numpy as np
@@ -34,7 +34,8 @@ from fogd.errors import FogdError
 from fogd.estimator import SCALAR_CHUNK
 from fogd.flags import Flag, describe
 from fogd.frozen import FrozenModel
-from fogd.outputs import Formatter, OutputBatch, Writer, rate_row_indices
+from fogd.modelfile import check_rate, printable
+from fogd.outputs import Chunk, Formatter, OutputBatch, Writer, rate_row_indices, split_batch
 from fogd.reader import Reader
 from fogd.ring import Ring
 from fogd.sdnotify import Notifier
@@ -51,6 +52,7 @@ RESTART_DELAY_S = 0.5
 NOTIFY_STATUS_S = 2.0  # how often systemd's STATUS= line is refreshed
 STATS_EVERY_S = 1.0
 HISTORY_POINTS = 60  # the stats file's history: the latest sample at each of the last 60 stats writes (a minute)
+RELOAD_TIMEOUT_S = 10.0  # a reload still preparing after this long is stuck (a FIFO, a hung filesystem)
 READER_STALL_S = 2.0  # a reader that has not come round its loop for this long is hung (its waits are <= 0.2 s)
 HISTORY_FIELDS = ("uptime_s", "temp_c", "temp_rate_cps", "comp_dph", "flags")
 _OUT_OF_DOMAIN, _CLAMPED = int(Flag.OUT_OF_DOMAIN), int(Flag.CLAMPED)
@@ -114,6 +116,9 @@ class LoopCounters:
     writer_deaths: int = 0
     reloads: int = 0
     reloads_refused: int = 0
+    reloads_stuck: int = 0  # a reload that did not finish within RELOAD_TIMEOUT_S (abandoned, later ones run)
+    records_popped: int = 0  # ring records compensated and encoded (or counted unencodable)
+    frames_unencodable: int = 0  # frames whose values no output encoding could carry (or the model failed on)
 
 
 @dataclass(frozen=True)
@@ -123,6 +128,7 @@ class Reload:
     model: FrozenModel
     temp_stale_s: float
     status_interval_s: float
+    compensator: Compensator | None = None  # built by the reload thread, so a swap allocates nothing
 
 
 @dataclass
@@ -169,6 +175,7 @@ class Daemon:
         self.writer = writer
         self.formatter = formatter
         self.model = model
+        check_rate(model, rate_hz, model.name)  # before a window's buffers are allocated
         self.compensator = Compensator(model, rate_hz)
         self.rate_hz = rate_hz
         self.axis = axis
@@ -191,6 +198,8 @@ class Daemon:
         self._reload_thread: threading.Thread | None = None
         self._reload_ready: Reload | None = None
         self._stall_logged = False
+        self._encode_error_logged = False
+        self._reload_started_s = 0.0
         self.history: deque[tuple[float, ...]] = deque(maxlen=HISTORY_POINTS)
 
     @property
@@ -276,32 +285,53 @@ class Daemon:
                 log.warning("SIGHUP: nothing to reload")
                 return
             self.notifier.send("RELOADING=1", f"MONOTONIC_USEC={time.clock_gettime_ns(time.CLOCK_MONOTONIC) // 1000}")
+            self._reload_ready = None
+            self._reload_started_s = time.monotonic()
             self._reload_thread = threading.Thread(target=self._prepare_reload, name="fogd-reload", daemon=True)
             self._reload_thread.start()
-        if self._reload_thread is not None and not self._reload_thread.is_alive():
+        thread = self._reload_thread
+        if thread is not None and thread.is_alive() and time.monotonic() - self._reload_started_s > RELOAD_TIMEOUT_S:
+            # a read blocked in the kernel cannot be interrupted: abandon the thread (its result is never used)
+            self.counters.reloads_stuck += 1
+            log.error("reload stuck for %.0f s (a FIFO or a hung filesystem?); abandoned, keeping model %s",
+                      RELOAD_TIMEOUT_S, printable(self.model.name))  # fmt: skip
+            self._reload_thread = None
+            self.notifier.send("READY=1", f"STATUS={self.short_status()}")
+        elif thread is not None and not thread.is_alive():
             self._reload_thread = None
             prepared, self._reload_ready = self._reload_ready, None
             if prepared is not None:
                 self._drain()  # the batches already received are compensated with the model they arrived under
-                self.apply(prepared)
+                try:
+                    self.apply(prepared)
+                except Exception as error:  # a reload must never take the running daemon down
+                    self.counters.reloads_refused += 1
+                    log.error("reload failed (%s); keeping model %s", printable(repr(error))[:200], printable(self.model.name))
             self.notifier.send("READY=1", f"STATUS={self.short_status()}")
 
     def _prepare_reload(self) -> None:
+        me = threading.current_thread()
         try:
-            self._reload_ready = self._reload()
+            prepared = self._reload()
+            check_rate(prepared.model, self.rate_hz, prepared.model.name)
+            compensator = Compensator(prepared.model, self.rate_hz)  # allocated here, off the data path
         except FogdError as error:
             self.counters.reloads_refused += 1
-            log.error("reload refused: %s; keeping model %s", error, self.model.name)
+            log.error("reload refused: %s; keeping model %s", printable(str(error)), printable(self.model.name))
+            return
         except Exception as error:  # a bug must not take the running daemon down with it
             self.counters.reloads_refused += 1
-            log.error("reload failed (%r); keeping model %s", error, self.model.name)
+            log.error("reload failed (%s); keeping model %s", printable(repr(error))[:200], printable(self.model.name))
+            return
+        if self._reload_thread is me:  # not abandoned as stuck meanwhile
+            self._reload_ready = replace(prepared, compensator=compensator)
 
     def apply(self, reload: Reload) -> None:
         """Use a validated reload from the next batch on."""
         self.temp_stale_s = reload.temp_stale_s
         self.status_interval_s = reload.status_interval_s
         old, model = self.compensator, reload.model
-        new = Compensator(model, self.rate_hz)
+        new = reload.compensator or Compensator(model, self.rate_hz)
         kept = model.inputs == old.model.inputs
         if kept:
             # compensator.py has no public hand-over of its state: carry the estimator bank and held temperature
@@ -310,7 +340,7 @@ class Daemon:
         self.compensator, self.model = new, model
         self.counters.reloads += 1
         log.warning(
-            "reloaded: model %s (%s); estimator state %s", model.name, model.method,
+            "reloaded: model %s (%s); estimator state %s", printable(model.name), model.method,
             "kept (same inputs)" if kept else "reset (inputs differ): warm-up again",
         )  # fmt: skip
 
@@ -319,7 +349,39 @@ class Daemon:
             records = self.ring.pop(MAX_BATCH)
             if not len(records):
                 return
-            self.writer.submit(self.formatter.encode(self.compensate(records)))
+            self.counters.records_popped += len(records)
+            try:
+                batch = self.compensate(records)
+            except Exception as error:  # a bug must cost the batch (counted), never the daemon
+                self._count_unencodable(len(records), error)
+                continue
+            try:
+                chunk = self.formatter.encode(batch)
+            except Exception as error:  # a value the output format cannot carry: drop that frame alone
+                chunk = self._encode_each(batch, error)
+            self.writer.submit(chunk)
+
+    def _encode_each(self, batch: OutputBatch, error: Exception) -> Chunk:
+        """The batch encoded frame by frame, leaving out (and counting) the frames that cannot be encoded."""
+        data, ends = [], []
+        total = 0
+        for one in split_batch(batch):
+            try:
+                chunk = self.formatter.encode(one)
+            except Exception as one_error:
+                self._count_unencodable(len(one.records), one_error)
+                continue
+            data.append(chunk.data)
+            ends.extend(total + end for end in chunk.frame_ends)
+            total += len(chunk.data)
+        return Chunk(b"".join(data), ends)
+
+    def _count_unencodable(self, frames: int, error: Exception) -> None:
+        self.counters.frames_unencodable += frames
+        if not self._encode_error_logged:
+            log.error("dropped %d frame(s) that cannot be compensated or encoded (%s: %s); counted as "
+                      "frames_unencodable", frames, type(error).__name__, printable(str(error))[:200])  # fmt: skip
+            self._encode_error_logged = True
 
     def compensate(self, records: np.ndarray) -> OutputBatch:
         """One Compensator.process call for every rate sample in `records`."""
@@ -383,13 +445,17 @@ class Daemon:
         drops = " ".join(
             f"{name} {value}" for name, value in lexer.as_dict().items() if value and name not in ("frames_ok", "other_frames")
         )
-        dropped_out = writer.frames_dropped_full + writer.frames_dropped_timeout + writer.frames_dropped_error
+        dropped_out = (
+            writer.frames_dropped_full + writer.frames_dropped_timeout + writer.frames_dropped_error
+            + writer.frames_dropped_exit + writer.frames_cut
+        )
         return (
             f"in {frames_in or 0} | out {writer.frames_written} dropped {dropped_out} | drops {drops or 'none'} | "
-            f"ring overruns {self.ring.overruns} | reconnects {reader.reconnects} | "
+            f"ring overruns {self.ring.overruns} | reconnects {reader.reconnects}"
+            f"{f' (about {reader.disconnected_s * self.rate_hz:.0f} frames lost unplugged)' if reader.disconnects else ''} | "
             f"latency {1e3 * self.latency.last_s:.1f} ms (max {1e3 * self.latency.max_s:.1f}) | "
             f"T {latest.temp_c:.2f} C dT/dt {latest.temp_rate_cps:+.5f} C/s comp {latest.comp_dph:+.4f} deg/h "
-            f"({describe(latest.flags)}) | {_shares_text(self.domain_shares())} | model {self.model.name} | "
+            f"({describe(latest.flags)}) | {_shares_text(self.domain_shares())} | model {printable(self.model.name)} | "
             f"fogd {__version__}"
         )
 
@@ -399,7 +465,7 @@ class Daemon:
         link = "" if getattr(self.reader, "connected", True) else "port lost, waiting | "
         return (
             f"{link}{self.counters.samples_compensated} samples | T {latest.temp_c:.2f} C | "
-            f"comp {latest.comp_dph:+.4f} deg/h | model {self.model.name}"
+            f"comp {latest.comp_dph:+.4f} deg/h | model {printable(self.model.name)}"
         )
 
     def snapshot(self) -> dict:
@@ -430,7 +496,38 @@ class Daemon:
             "ring_overruns": self.ring.overruns,
             "writer": asdict(self.writer.counters),
             "loop": asdict(self.counters),
+            "balance": self.balance(),
         }
+
+    def balance(self) -> dict:
+        """Where every decoded frame went: in = out + used_as_input + sum(dropped) + sum(pending). Frames used
+        as input are the temperature (and other) frames an output format without them consumes; at a clean
+        stop nothing is pending."""
+        lexer, writer, loop = self.reader.lexer.counters, self.writer.counters, self.counters
+        settled = (
+            writer.frames_written + writer.frames_dropped_full + writer.frames_dropped_timeout
+            + writer.frames_dropped_error + writer.frames_dropped_exit + writer.frames_cut
+        )  # fmt: skip
+        dropped = {
+            "ring_overrun": self.ring.overruns,
+            "unencodable": loop.frames_unencodable,
+            "output_queue_full": writer.frames_dropped_full,
+            "output_timeout": writer.frames_dropped_timeout,
+            "output_error": writer.frames_dropped_error,
+            "output_at_exit": writer.frames_dropped_exit,
+            "output_cut": writer.frames_cut,
+        }
+        pending = {
+            "ring": len(self.ring),
+            "writer": writer.frames_submitted - settled,
+            "reader": lexer.frames_ok + lexer.other_frames - sum(self.reader.counters.frames_in.values()),
+        }
+        frames_in = lexer.frames_ok + lexer.other_frames
+        used = loop.records_popped - loop.frames_unencodable - writer.frames_submitted
+        return {
+            "in": frames_in, "out": writer.frames_written, "used_as_input": used, "dropped": dropped,
+            "pending": pending, "adds_up": frames_in == writer.frames_written + used + sum(dropped.values()) + sum(pending.values()),
+        }  # fmt: skip
 
 
 def _shares_text(shares: dict[str, float]) -> str:

@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 
 from .errors import ConfigError
-from .protocols.base import Frame, FrameError, Protocol
+from .protocols.base import IMPLAUSIBLE, Frame, FrameError, Protocol
 
 SLICE_FRAMES = 16
 
@@ -27,12 +27,18 @@ class LexerCounters:
     bad_crc: int = 0  # complete candidates whose CRC or checksum failed
     truncated: int = 0  # failed candidates with another header inside (cut short, false header); flush() leftovers
     bad_line: int = 0  # line-format lines that did not parse
+    bad_value: int = 0  # frames whose check passed but whose values no device sends (a time beyond 2^53 us)
+    implausible: int = 0  # rates the plausibility check flagged invalid (lines without a checksum, if enabled)
     garbage_bytes: int = 0
+    frame_bytes: int = 0  # bytes inside accepted frames: bytes fed = frame_bytes + garbage_bytes + buffered
     seq_gaps: int = 0  # jumps in a sequence counter
     frames_missing: int = 0  # frames lost in those jumps (modulo the counter's wrap: 128 for KVH)
     seq_repeats: int = 0  # a sequence number equal to the previous one
     invalid_axes: int = 0  # present axes marked invalid by a status bit or carrying NaN/Inf
     invalid_temps: int = 0  # temperatures that are NaN/Inf
+    suspect_frames: int = 0  # frames of an unknown type whose sequence number does not follow (a false header
+    # that passed the CRC by chance: 1 in 65536 for CRC-16) -- kept as kind 'other', never used as data
+    seq_resets: int = 0  # sequence tracking restarted (flush: end of stream or a lost port)
 
     def as_dict(self) -> dict[str, int]:
         return asdict(self)
@@ -68,13 +74,29 @@ class Lexer:
             self._scan(frames)
         return frames
 
-    def flush(self) -> None:
-        """Drop what is buffered (end of stream, reconnect): an unfinished frame counts as truncated."""
+    def flush(self) -> list[Frame]:
+        """End of stream (stop, a lost port): the frames still inside what is buffered, then drop the rest.
+
+        What is held may start with a false header sized beyond the end (a fogd header of unknown type claims
+        up to 255 bytes) with whole frames behind it: drop the held candidate's first byte and rescan, as for a
+        failed check. An unfinished frame counts as truncated. Sequence tracking restarts: what follows a gap of
+        unknown length cannot be compared with what came before it."""
+        frames: list[Frame] = []
+        counters = self.counters
         buf = self._buf
         if any(protocol.find(buf, 0) == 0 and protocol.frame_length(buf, 0) >= 0 for protocol in self.protocols):
-            self.counters.truncated += 1
-        self.counters.garbage_bytes += len(buf)
-        self._buf = b""
+            counters.truncated += 1
+        if self.protocols[0].line_based:  # a line without its newline holds no whole line
+            counters.garbage_bytes += len(buf)
+            self._buf = b""
+        while self._buf:
+            counters.garbage_bytes += 1
+            self._buf = self._buf[1:]
+            self._scan(frames)
+        if self._last_seq:
+            counters.seq_resets += 1
+            self._last_seq.clear()
+        return frames
 
     def _next_candidate(self, buf: bytes, pos: int) -> tuple[int, Protocol | None]:
         best, best_protocol = -1, None
@@ -123,6 +145,7 @@ class Lexer:
                 pos = start + skip
                 continue
             counters.garbage_bytes += start - pos
+            counters.frame_bytes += length
             pos = start + length
             frames.append(frame)
             self._account(frame, protocol)
@@ -136,17 +159,23 @@ class Lexer:
             counters.frames_ok += 1
         if frame.axis_valid != frame.axis_present:
             counters.invalid_axes += sum(p and not v for p, v in zip(frame.axis_present, frame.axis_valid))
+            if frame.flags & IMPLAUSIBLE and frame.kind != "comp":
+                counters.implausible += 1
         if frame.temp_c is not None and not math.isfinite(frame.temp_c):
             counters.invalid_temps += 1
         seq = frame.seq
         if seq is None or protocol.seq_modulus is None:
             return
-        key = (frame.protocol, frame.message)
+        key = (frame.protocol, frame.message) if frame.kind != "other" else (frame.protocol, frame.raw[:3])
         previous = self._last_seq.get(key)
         self._last_seq[key] = seq
         if previous is None:
+            if frame.kind == "other" and frame.message == "other":  # a first frame of a type fogd does not know
+                counters.suspect_frames += 1
             return
         step = (seq - previous) % protocol.seq_modulus
+        if frame.kind == "other" and frame.message == "other" and step != 1:
+            counters.suspect_frames += 1
         if step == 0:
             counters.seq_repeats += 1
         elif step != 1:

@@ -35,6 +35,7 @@ MODEL_VERSION = 2
 READABLE_VERSIONS = (1, 2)
 MAX_MODEL_BYTES = 32 * 1024 * 1024
 MAX_ROWS = 100_000  # support vectors, centres or polynomial terms
+MIN_SCALE = 1e-9  # input scales, RBF widths and SVR gammas: beyond 1e-9..1e9 the arithmetic under/overflows
 _FLOAT_MAX = sys.float_info.max
 METHODS = ("linear", "ls-poly", "rbf-nn", "pso-svr")
 TOP_KEYS = {
@@ -128,7 +129,7 @@ def load(path: str | Path) -> FrozenModel:
     except UnicodeDecodeError:
         raise ModelFileError(f"{source}: not UTF-8 text; a fogd model file is JSON") from None
     try:
-        parsed = json.loads(text, parse_constant=_reject_constant)
+        parsed = json.loads(text, parse_constant=_reject_constant, object_pairs_hook=_unique_keys)
     except RecursionError:
         raise ModelFileError(f"{source}: JSON nested too deeply; not a fogd model file") from None
     except ValueError as error:
@@ -140,10 +141,95 @@ def _reject_constant(name: str) -> None:
     raise ValueError(f"{name} is not allowed")
 
 
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """A JSON object, refusing a key given twice (json would silently keep the last)."""
+    document = dict(pairs)
+    if len(document) != len(pairs):
+        seen: set[str] = set()
+        twice = next(key for key, _ in pairs if key in seen or seen.add(key))
+        raise ValueError(f"key {printable(twice)[:40]!r} appears twice in one object")
+    return document
+
+
+def printable(text: str) -> str:
+    """`text` with control characters escaped, safe for a log line or a systemd field."""
+    return text if text.isprintable() else text.encode("unicode_escape").decode("ascii")
+
+
+def _control_characters(value: Any, where: str, check: "_Checker", depth: int = 0) -> None:
+    """Refuse a control character (newline, ESC, ...) in any string of the document: names and notes end up
+    in log lines and systemd's STATUS= field, where a newline forges a line or a field."""
+    if isinstance(value, str):
+        if any(ord(char) < 0x20 or 0x7F <= ord(char) < 0xA0 for char in value):
+            check.fail(where, f"holds a control character ({printable(value)[:40]!r}); names and notes must be printable")
+    elif isinstance(value, dict):
+        for key, item in value.items():
+            _control_characters(key, f"{where}.{printable(key)[:40]}" if where else printable(key)[:40], check, depth + 1)
+            _control_characters(item, f"{where}.{printable(key)[:40]}" if where else printable(key)[:40], check, depth + 1)
+    elif isinstance(value, list):
+        for i, item in enumerate(value):
+            _control_characters(item, f"{where}[{i}]", check, depth + 1)
+
+
+MAX_COMP_DPH = 1e6  # a thermal error beyond this (277 deg/s) is no FOG's: a corrupt or hostile model
+MAX_ESTIMATOR_BYTES = 256 * 2**20  # the temperature-rate estimators' buffers at the daemon's rate
+_CHECK_CORNERS = 256
+_CHECK_RANDOM = 64
+
+
+def check_output(model: FrozenModel, source: str = "model") -> None:
+    """The model's compensation must be finite and below MAX_COMP_DPH over its whole (clamped) domain: checked
+    at the domain's corners, centre and seeded random points, for the model and its guard's fallback."""
+    d = len(model.inputs)
+    low, high = model.domain_min, model.domain_max
+    rng = np.random.default_rng(0)
+    if 2**d <= _CHECK_CORNERS:
+        corners = (np.arange(2**d)[:, None] >> np.arange(d)[None, :]) & 1
+    else:
+        corners = rng.integers(0, 2, size=(_CHECK_CORNERS, d))
+    unit = np.vstack([corners, np.full((1, d), 0.5), rng.random((_CHECK_RANDOM, d))])
+    points = low + unit * (high - low)
+    models = [model]
+    guard = model.meta.get("domain_guard")
+    if guard is not None:
+        models.append(guard.fallback)
+    for each in models:
+        with np.errstate(all="ignore"):
+            try:
+                y, _ = each.predict(points)
+            except (ArithmeticError, ValueError) as error:
+                raise ModelFileError(f"{source}: {each.name or 'the model'} cannot be evaluated on its domain ({error})") from None
+        bad = ~(np.abs(y) <= MAX_COMP_DPH)
+        if bad.any():
+            raise ModelFileError(
+                f"{source}: {printable(each.name or 'the model')[:60]} gives {y[bad][0]!r} deg/h inside its own domain "
+                f"(the limit is {MAX_COMP_DPH:g}); a corrupt or hostile model"
+            )
+
+
+def check_rate(model: FrozenModel, rate_hz: float, source: str = "model") -> None:
+    """The model at the daemon's sample rate: its estimator windows must be whole and fit MAX_ESTIMATOR_BYTES."""
+    total = 0
+    for spec in model.inputs:
+        if spec.kind != TEMP_RATE:
+            continue
+        try:
+            window, _, step = spec.estimator.samples(rate_hz)
+        except ValueError as error:
+            raise ModelFileError(f"{source}: {error}") from None
+        total += 8 * (window + step + 1)
+    if total > MAX_ESTIMATOR_BYTES:
+        raise ModelFileError(
+            f"{source}: its temperature-rate windows need {total / 2**20:.0f} MiB at {rate_hz:g} Hz (the limit is "
+            f"{MAX_ESTIMATOR_BYTES // 2**20} MiB); shorten the windows or lower rate_hz"
+        )
+
+
 def from_document(doc: Any, *, source: str = "model") -> FrozenModel:
     """Validate a parsed model document and build the frozen model it describes."""
     check = _Checker(source)
     check.mapping(doc, "", TOP_KEYS, optional=OPTIONAL_TOP_KEYS)
+    _control_characters(doc, "", check)
     if doc["format"] != MODEL_FORMAT:
         check.fail("format", f"is {str(doc['format'])[:40]!r}, expected {MODEL_FORMAT!r}")
     version = check.integer(doc["version"], "version")
@@ -158,6 +244,8 @@ def from_document(doc: Any, *, source: str = "model") -> FrozenModel:
     check.mapping(doc["input_scaling"], "input_scaling", {"mean", "scale"})
     x_mean = check.vector(doc["input_scaling"]["mean"], "input_scaling.mean", d)
     x_scale = check.vector(doc["input_scaling"]["scale"], "input_scaling.scale", d, positive=True)
+    if np.any(x_scale < MIN_SCALE):
+        check.fail("input_scaling.scale", f"has an entry below {MIN_SCALE:g}")
     check.mapping(doc["output_scaling"], "output_scaling", {"mean", "scale"})
     y_mean = check.number(doc["output_scaling"]["mean"], "output_scaling.mean")
     y_scale = check.number(doc["output_scaling"]["scale"], "output_scaling.scale", positive=True)
@@ -182,7 +270,7 @@ def from_document(doc: Any, *, source: str = "model") -> FrozenModel:
         meta["domain_guard"] = check.guard(
             doc["domain_guard"], inputs, x_mean, x_scale, y_mean, y_scale, domain_min, domain_max, name
         )
-    return FrozenModel(
+    model = FrozenModel(
         method=method,
         inputs=inputs,
         x_mean=x_mean,
@@ -195,6 +283,8 @@ def from_document(doc: Any, *, source: str = "model") -> FrozenModel:
         name=name,
         meta=meta,
     )
+    check_output(model, source)
+    return model
 
 
 class _Checker:
@@ -313,12 +403,16 @@ class _Checker:
         elif method == "rbf-nn":
             out["centres"] = self.matrix(value["centres"], "params.centres", d)
             out["width"] = self.number(value["width"], "params.width", positive=True)
+            if not MIN_SCALE <= out["width"] <= 1 / MIN_SCALE:
+                self.fail("params.width", f"is {out['width']!r}; it must be within {MIN_SCALE:g}..{1 / MIN_SCALE:g}")
             out["coef"] = self.vector(value["coef"], "params.coef", len(out["centres"]))
         else:
             # an SVR may keep no support vector at all when its linear trend explains every block
             out["support_vectors"] = self.matrix(value["support_vectors"], "params.support_vectors", d, allow_empty=True)
             out["dual_coef"] = self.vector(value["dual_coef"], "params.dual_coef", len(out["support_vectors"]))
             out["gamma"] = self.number(value["gamma"], "params.gamma", positive=True)
+            if not MIN_SCALE <= out["gamma"] <= 1 / MIN_SCALE:
+                self.fail("params.gamma", f"is {out['gamma']!r}; it must be within {MIN_SCALE:g}..{1 / MIN_SCALE:g}")
             if "trend_powers" in value:
                 out["trend_powers"] = self._powers(value["trend_powers"], "params.trend_powers", d)
                 out["trend_coef"] = self.vector(value["trend_coef"], "params.trend_coef", len(out["trend_powers"]))

@@ -64,6 +64,7 @@ class Chunk:
 
     data: bytes
     frame_ends: list[int]
+    begun: bool = False  # the first frame's start is already on the wire: it must be finished, never dropped
 
 
 class Formatter:
@@ -158,10 +159,35 @@ def _json(value: float) -> str:
     return repr(value) if math.isfinite(value) else "null"
 
 
+def split_batch(batch: OutputBatch) -> list[OutputBatch]:
+    """The batch as one batch per record (the slow path that isolates a frame no format can encode)."""
+    position = {int(row): j for j, row in enumerate(batch.rate_rows.tolist())}
+    comp = batch.comp
+    batches = []
+    for i in range(len(batch.records)):
+        j = position.get(i)
+        rows = slice(j, j + 1) if j is not None else slice(0, 0)
+        batches.append(OutputBatch(
+            batch.records[i : i + 1], np.zeros(1 if j is not None else 0, dtype=np.intp), batch.t_s[rows],
+            Compensated(comp.temp_c[rows], comp.temp_rate_cps[rows], comp.comp_dph[rows], comp.rate_comp_dph[rows],
+                        comp.flags[rows]),
+        ))  # fmt: skip
+    return batches
+
+
 def rate_row_indices(records: np.ndarray) -> np.ndarray:
     """Indices of the ring records that carry a gyro rate."""
     kind = records["kind"]
     return np.flatnonzero((kind == KIND_IMU) | (kind == KIND_RATE))
+
+
+class SinkError(Exception):
+    """A write that failed after `written` bytes of the data had gone (a full disk, a vanished consumer)."""
+
+    def __init__(self, written: int, error: OSError) -> None:
+        super().__init__(describe_os_error(error))
+        self.written = written
+        self.error = error
 
 
 class Sink:
@@ -172,9 +198,14 @@ class Sink:
         self.fd = fd
         self.blocking = blocking  # regular files: the disk, not a consumer, sets the pace
         self._on_close = on_close
+        try:
+            self.regular = stat.S_ISREG(os.fstat(fd).st_mode)  # a cut frame can be cut off again (truncate)
+        except OSError:
+            self.regular = False
 
     def write(self, data: bytes, timeout_s: float) -> int:
-        """Bytes of `data` written before `timeout_s` ran out (all of them unless the consumer is stuck)."""
+        """Bytes of `data` written before `timeout_s` ran out (all of them unless the consumer is stuck);
+        SinkError (with the bytes written before it) when the sink fails."""
         view = memoryview(data)
         done = 0
         deadline = time.monotonic() + timeout_s
@@ -190,7 +221,21 @@ class Sink:
                 done += os.write(self.fd, view[done:])
             except BlockingIOError:
                 continue
+            except OSError as error:
+                raise SinkError(done, error) from None
         return done
+
+    def cut_back(self, length: int) -> bool:
+        """Remove the last `length` bytes written (a frame the disk took only part of); regular files only."""
+        if not self.regular:
+            return False
+        try:
+            end = os.lseek(self.fd, 0, os.SEEK_CUR)
+            os.ftruncate(self.fd, end - length)
+            os.lseek(self.fd, end - length, os.SEEK_SET)
+        except OSError:
+            return False
+        return True
 
     def close(self) -> None:
         if self._on_close is not None:
@@ -286,14 +331,25 @@ def _pty_sink(link: str) -> Sink:
 
 @dataclass
 class WriterCounters:
+    """Every frame handed to `submit` ends in exactly one of these, or is `frames_pending` (the writer is still
+    finishing a frame the consumer took part of): submitted = written + dropped_* + cut + pending."""
+
+    frames_submitted: int = 0
     frames_written: int = 0
     frames_dropped_full: int = 0  # queue full: the consumer is behind
     frames_dropped_timeout: int = 0  # the consumer did not take bytes within the write timeout
     frames_dropped_error: int = 0  # the sink reported an error
+    frames_dropped_exit: int = 0  # still queued when the flush at exit ran out of time
+    frames_cut: int = 0  # begun on the wire but never finished: the consumer stalled through the exit flush
+    frames_pending: int = 0  # begun on the wire; its rest goes before anything else
 
 
 class Writer:
-    """The writer thread: a bounded queue of encoded chunks drained into a sink with a write timeout."""
+    """The writer thread: a bounded queue of encoded chunks drained into a sink with a write timeout.
+
+    A frame goes on the wire whole or not at all: when the consumer takes part of a frame and then stalls,
+    the rest of that frame is kept (`frames_pending`) and written before any later byte, and the frames behind
+    it are dropped (counted); on a regular file a frame the disk took only part of is cut off again."""
 
     def __init__(self, sink: Sink, *, queue_chunks: int = QUEUE_CHUNKS, write_timeout_s: float = WRITE_TIMEOUT_S) -> None:
         self.sink = sink
@@ -307,10 +363,15 @@ class Writer:
         # writer, so no lock; equal means the writer thread is idle in `get` with nothing queued.
         self._queued = 0
         self._done = 0
+        self._tail = b""  # the unwritten rest of a frame begun on the wire (writer thread's, set before _done)
+        self._give_up_s = math.inf  # monotonic time after which queued chunks are counted, not written (exit)
 
     def start(self, header: bytes = b"") -> None:
         if header:
-            self.sink.write(header, self.write_timeout_s)
+            try:
+                self.sink.write(header, self.write_timeout_s)
+            except SinkError:
+                pass  # the frames' own writes report the error
         self._thread.start()
 
     @property
@@ -321,7 +382,8 @@ class Writer:
         """Queue a chunk without waiting; a full queue drops it (counted)."""
         if not chunk.frame_ends:
             return
-        if not self.sink.blocking and self._queued == self._done and self._thread.is_alive():
+        self.counters.frames_submitted += len(chunk.frame_ends)
+        if not self.sink.blocking and self._queued == self._done and not self._tail and self._thread.is_alive():
             rest = self._write_now(chunk)
             if rest is None:
                 return
@@ -329,7 +391,7 @@ class Writer:
         try:
             self._queue.put_nowait(chunk)
             self._queued += 1
-        except queue.Full:
+        except queue.Full:  # (never the rest of a direct write: the writer was idle, the queue empty)
             self.counters.frames_dropped_full += len(chunk.frame_ends)
 
     def _write_now(self, chunk: Chunk) -> Chunk | None:
@@ -343,20 +405,28 @@ class Writer:
         self.counters.frames_written += complete
         if written == len(chunk.data):
             return None
-        return Chunk(chunk.data[written:], [end - written for end in chunk.frame_ends[complete:]])
+        begun = written > (chunk.frame_ends[complete - 1] if complete else 0)
+        return Chunk(chunk.data[written:], [end - written for end in chunk.frame_ends[complete:]], begun)
 
     def close(self, timeout_s: float) -> bool:
-        """Write what is queued (within `timeout_s`), stop the thread and close the sink; False if it timed out."""
+        """Write what is queued (within `timeout_s`), stop the thread and close the sink; False if it timed out.
+        What the flush could not write is counted (dropped at exit, or cut)."""
         deadline = time.monotonic() + timeout_s
         flushed = True
         if self._thread.is_alive():
+            self._give_up_s = deadline
             try:
                 self._queue.put(None, timeout=max(0.0, deadline - time.monotonic()))
             except queue.Full:
                 flushed = False
-            self._thread.join(max(0.0, deadline - time.monotonic()))
+                # past the deadline the thread counts chunks instead of writing them: room comes within a write
+                try:
+                    self._queue.put(None, timeout=self.write_timeout_s + 1.0)
+                except queue.Full:
+                    pass
+            self._thread.join(max(0.0, deadline - time.monotonic()) + (0.0 if flushed else self.write_timeout_s + 1.0))
             flushed = flushed and not self._thread.is_alive()
-        if flushed:
+        if not self._thread.is_alive():
             self.sink.close()
         return flushed
 
@@ -365,24 +435,61 @@ class Writer:
             while True:
                 chunk = self._queue.get()
                 if chunk is None:
+                    self._finish_tail()
                     return
-                self._write(chunk)
+                if time.monotonic() > self._give_up_s:
+                    self.counters.frames_dropped_exit += len(chunk.frame_ends)
+                else:
+                    self._write(chunk)
                 self._done += 1
         except BaseException as error:  # the daemon notices a dead writer through `alive` and `error`
             self.error = error
             raise
 
+    def _finish_tail(self) -> None:
+        """At exit: finish a frame begun on the wire, or count it cut."""
+        if not self._tail:
+            return
+        try:
+            written = self.sink.write(self._tail, max(0.0, min(self.write_timeout_s, self._give_up_s - time.monotonic())))
+        except SinkError as error:
+            written = error.written
+        counters = self.counters
+        counters.frames_pending = 0
+        if written == len(self._tail):
+            counters.frames_written += 1
+        else:
+            counters.frames_cut += 1
+        self._tail = b""
+
     def _write(self, chunk: Chunk) -> None:
         counters = self.counters
+        data, ends, begun = chunk.data, chunk.frame_ends, chunk.begun
+        if self._tail:  # finish the frame begun on the wire before anything else
+            tail = self._tail
+            data, ends, begun = tail + data, [len(tail), *(end + len(tail) for end in ends)], True
+            counters.frames_pending = 0
+            self._tail = b""
+        failure: SinkError | None = None
         try:
-            written = self.sink.write(chunk.data, self.write_timeout_s)
-        except OSError as error:
-            if not self._error_logged:
-                log.warning("%s: write failed: %s; dropping output until it recovers", self.sink.name, describe_os_error(error))
-                self._error_logged = True
-            counters.frames_dropped_error += len(chunk.frame_ends)
-            return
-        self._error_logged = False
-        complete = int(np.searchsorted(chunk.frame_ends, written, side="right"))
+            written = self.sink.write(data, self.write_timeout_s)
+        except SinkError as error:
+            written, failure = error.written, error
+        complete = bisect.bisect_right(ends, written)
+        frame_start = ends[complete - 1] if complete else 0
+        partial = complete < len(ends) and (written > frame_start or (complete == 0 and begun))
+        if partial and failure is not None and written > frame_start and self.sink.cut_back(written - frame_start):
+            partial = False  # a file: the frame the disk took part of is gone again, whole
+        if partial:
+            self._tail = data[written : ends[complete]]
+            counters.frames_pending = 1
+        lost = len(ends) - complete - (1 if partial else 0)
         counters.frames_written += complete
-        counters.frames_dropped_timeout += len(chunk.frame_ends) - complete
+        if failure is None:
+            self._error_logged = False
+            counters.frames_dropped_timeout += lost
+            return
+        if not self._error_logged:
+            log.warning("%s: write failed: %s; dropping output until it recovers", self.sink.name, failure)
+            self._error_logged = True
+        counters.frames_dropped_error += lost

@@ -46,6 +46,8 @@ class ReaderCounters:
     frames_in: dict[str, int] = field(default_factory=lambda: {name: 0 for name in KIND_NAMES.values()})
     disconnects: int = 0
     reconnects: int = 0
+    disconnected_s: float = 0.0  # time without the port: frames sent meanwhile are lost on the wire, uncounted
+    # by sequence numbers (KVH's wrap every 128), so the status line estimates them from this and rate_hz
 
 
 class Reader:
@@ -62,6 +64,7 @@ class Reader:
         self.heartbeat_s = time.monotonic()
         self.connected = port is not None
         self._stopping = threading.Event()
+        self._lost_at_s = time.monotonic()
         self._thread: threading.Thread | None = None
 
     def start(self) -> None:
@@ -79,6 +82,8 @@ class Reader:
         self._stopping.set()
         if self._thread is not None:
             self._thread.join(timeout_s)
+        if not self.alive:
+            self._flush_lexer()
         self._close()
 
     def _run(self) -> None:
@@ -101,8 +106,10 @@ class Reader:
     def _frame(self, data: bytes, t_rx_s: float) -> None:
         self.counters.bytes_in += len(data)
         frames = self.lexer.feed(data)
-        if not frames:
-            return
+        if frames:
+            self._push(frames, t_rx_s)
+
+    def _push(self, frames: list, t_rx_s: float) -> None:
         batch = pack_frames(frames, t_rx_s)
         counts = np.bincount(batch["kind"], minlength=len(KIND_NAMES) + 1)
         frames_in = self.counters.frames_in
@@ -116,8 +123,15 @@ class Reader:
         log.warning("%s: port lost (%s); reopening with backoff", name, error)
         self.counters.disconnects += 1
         self.connected = False
-        self.lexer.flush()
+        self._lost_at_s = time.monotonic()
+        self._flush_lexer()
         self._close()
+
+    def _flush_lexer(self) -> None:
+        """The whole frames still held by the lexer (behind a false header, say) go on; the rest is counted."""
+        frames = self.lexer.flush()
+        if frames:
+            self._push(frames, time.monotonic())
 
     def _reopen(self) -> bool:
         """Open the port again: at once when its path appears, with backoff while opening it fails; False if
@@ -145,6 +159,7 @@ class Reader:
                 delay_s = min(2 * delay_s, BACKOFF_MAX_S)
                 continue
             self.counters.reconnects += 1
+            self.counters.disconnected_s += time.monotonic() - self._lost_at_s
             self.connected = True
             log.warning("%s: port back; reading again", self.port.port)
             return True

@@ -51,6 +51,7 @@ def test_clean_stream_gives_every_frame_and_no_drops():
     assert feed_all(lexer, [b"".join(frames)]) == frames
     counters = lexer.counters.as_dict()
     assert counters.pop("frames_ok") == 50
+    assert counters.pop("frame_bytes") == sum(map(len, frames))
     assert set(counters.values()) == {0}
 
 

@@ -181,8 +181,11 @@ def test_stuck_consumer_is_counted_and_never_blocks_the_caller(tmp_path):
     writer.close(1.0)
     counters = writer.counters
     assert counters.frames_dropped_full > 0 and counters.frames_dropped_timeout > 0
-    total = counters.frames_written + counters.frames_dropped_full + counters.frames_dropped_timeout
-    assert total == 200 * 1000
+    total = (
+        counters.frames_written + counters.frames_dropped_full + counters.frames_dropped_timeout
+        + counters.frames_dropped_exit + counters.frames_cut + counters.frames_pending
+    )
+    assert total == counters.frames_submitted == 200 * 1000
 
 
 def test_direct_and_queued_writes_keep_the_order_and_count_every_frame(tmp_path):
@@ -216,3 +219,98 @@ def test_direct_and_queued_writes_keep_the_order_and_count_every_frame(tmp_path)
     assert writer.counters.frames_written == len(expected) // 36
     assert writer.counters.frames_dropped_full == writer.counters.frames_dropped_timeout == 0
     assert 0 < queued < len(chunks)  # both paths were taken
+
+
+def numbered_frames(first: int, count: int) -> Chunk:
+    """`count` JSON lines of 59 bytes, numbered from `first` (an odd length: a pty's buffer ends mid-frame)."""
+    lines = [f'{{"n":"{n:012d}","pad":"{"x" * 29}"}}\n'.encode() for n in range(first, first + count)]
+    ends = list(np.cumsum([len(line) for line in lines]))
+    return Chunk(b"".join(lines), [int(end) for end in ends])
+
+
+def test_a_consumer_stalling_mid_frame_never_gets_a_cut_frame(tmp_path):
+    """Issue 11.1: a write timeout mid-frame used to leave the frame's head on the wire, glued to the next
+    frame. Every line the consumer gets is whole, and every frame submitted is counted exactly once."""
+    link = tmp_path / "stalling"
+    sink = open_sink(f"pty:{link}", 921600)
+    reader_fd = os.open(link, os.O_RDONLY | os.O_NOCTTY | os.O_NONBLOCK)
+    received = bytearray()
+    resume = threading.Event()
+
+    def read_after_stall():
+        resume.wait(20.0)
+        idle_since = time.monotonic()
+        while time.monotonic() - idle_since < 1.0:
+            try:
+                data = os.read(reader_fd, 65536)
+            except BlockingIOError:
+                time.sleep(0.01)
+                continue
+            received.extend(data)
+            idle_since = time.monotonic()
+
+    thread = threading.Thread(target=read_after_stall)
+    thread.start()
+    writer = Writer(sink, queue_chunks=8, write_timeout_s=0.02)
+    writer.start()
+    submitted = 0
+    for round_ in range(60):
+        writer.submit(numbered_frames(submitted, 50))
+        submitted += 50
+        time.sleep(0.01)
+        if round_ == 40:
+            resume.set()  # the consumer comes back; the writer first finishes the frame it was cut in
+    thread.join(30.0)
+    counters = writer.counters
+    assert writer.close(2.0)
+    os.close(reader_fd)
+    lines = bytes(received).split(b"\n")
+    assert lines[-1] == b""
+    numbers = [int(json.loads(line)["n"]) for line in lines[:-1]]  # a cut line would not parse
+    assert numbers == sorted(numbers) and len(set(numbers)) == len(numbers)
+    assert counters.frames_dropped_timeout > 0  # the stall did cost frames
+    assert counters.frames_written == len(numbers)
+    assert counters.frames_submitted == submitted == (
+        counters.frames_written + counters.frames_dropped_full + counters.frames_dropped_timeout
+        + counters.frames_dropped_error + counters.frames_dropped_exit + counters.frames_cut + counters.frames_pending
+    )
+
+
+class FullDisk:
+    """A sink over a real file that takes `capacity` bytes and then fails like a full disk (ENOSPC)."""
+
+    def __init__(self, path, capacity: int) -> None:
+        from fogd.outputs import Sink
+
+        self.fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        self.sink = Sink(str(path), self.fd, blocking=True, on_close=lambda: os.close(self.fd))
+        self.capacity = capacity
+        real_write = os.write
+
+        def write(fd, data):
+            if fd != self.fd:
+                return real_write(fd, data)
+            room = self.capacity - os.lseek(fd, 0, os.SEEK_CUR)
+            if room <= 0:
+                raise OSError(28, os.strerror(28))
+            return real_write(fd, bytes(data[:room]))
+
+        self.write = write
+
+
+def test_a_full_disk_leaves_whole_frames_and_counts_them(tmp_path, monkeypatch):
+    """Issue 11.2/11.4: on a full disk the file held more frames than were counted, and a cut one. Now the
+    file holds whole frames only, exactly as many as counted written."""
+    disk = FullDisk(tmp_path / "out.jsonl", capacity=10_000)
+    monkeypatch.setattr("fogd.outputs.os.write", disk.write)
+    writer = Writer(disk.sink)
+    writer.start()
+    for first in range(0, 1000, 100):
+        writer.submit(numbered_frames(first, 100))
+    assert writer.close(2.0)
+    data = (tmp_path / "out.jsonl").read_bytes()
+    lines = data.split(b"\n")
+    assert lines[-1] == b"" and all(json.loads(line) for line in lines[:-1])
+    counters = writer.counters
+    assert counters.frames_written == len(lines) - 1 == 10_000 // len(lines[0] + b"\n")
+    assert counters.frames_written + counters.frames_dropped_error == counters.frames_submitted == 1000

@@ -8,7 +8,8 @@ from hypothesis import strategies as st
 
 from fogd.errors import ConfigError
 from fogd.protocols import Frame, FrameError, get
-from fogd.protocols.ascii import AsciiProtocol
+from fogd.protocols.ascii import MAX_RATE_DPH, AsciiProtocol
+from fogd.protocols.base import MAX_T_S
 
 ASCII = AsciiProtocol()
 DSP3000_LINE = b"       0.015733   1\r\n"  # the example in protocols.md: deg/s, then the validity flag
@@ -77,10 +78,11 @@ def test_frame_length_finds_lines_and_skips_blank_ones():
 
 
 finite = st.floats(allow_nan=False, allow_infinity=False)
-times = st.none() | finite
+rates = st.floats(min_value=-MAX_RATE_DPH, max_value=MAX_RATE_DPH)
+times = st.none() | st.floats(min_value=-MAX_T_S, max_value=MAX_T_S)  # beyond, a line is refused (issue 11.5)
 
 
-@given(t_s=times, rate=finite, temp_c=finite, kind=st.sampled_from(["rate", "temp", "imu"]))
+@given(t_s=times, rate=rates, temp_c=finite, kind=st.sampled_from(["rate", "temp", "imu"]))
 def test_fogd_line_round_trip(t_s, rate, temp_c, kind):
     record = Frame("ascii", kind, "", None, t_s, (math.nan, math.nan, rate), (False, False, True), (False, False, True), temp_c)
     frame = ASCII.decode(ASCII.encode(record))
@@ -91,7 +93,7 @@ def test_fogd_line_round_trip(t_s, rate, temp_c, kind):
         assert frame.temp_c == temp_c
 
 
-@given(t_s=finite, values=st.tuples(*[finite] * 5), flags=st.integers(0, 63))
+@given(t_s=st.floats(min_value=-MAX_T_S, max_value=MAX_T_S), values=st.tuples(rates, *[finite] * 4), flags=st.integers(0, 63))
 def test_comp_line_round_trip(t_s, values, flags):
     rate, temp_c, temp_rate_cps, comp, rate_comp = values
     z_only = (False, False, True)

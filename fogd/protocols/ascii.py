@@ -3,6 +3,13 @@ comma-separated lines for rate, temperature, both, and compensated output (gramm
 
 Both are single-axis: the rate is the z axis (index 2), x and y are absent. A line that does not parse is
 rejected whole and counted as `bad_line`; blank lines are skipped as garbage.
+
+fogd's lines may end in an NMEA-style checksum, `*HH`: the XOR of every byte before the `*`, in two hex digits.
+fogd writes it and checks it when present (a mismatch counts as `bad_crc`); a line without one, and every
+DSP-3000 line, carries nothing that detects a flipped digit. For those, `max_jump_dph` adds a plausibility
+check: a rate that jumps by more than that from both the previous rate and the last accepted one has its axis
+marked invalid (`IMPLAUSIBLE` in the frame's flags; the lexer counts it). A time or rate beyond what the
+output formats carry (|t| > 2^53 us, |rate| > float32's range) rejects the line.
 """
 
 import math
@@ -10,9 +17,10 @@ import re
 from collections.abc import Sequence
 
 from ..errors import ConfigError
-from .base import NAN, Z_ONLY, Axes3, Frame, FrameError, Mask3, Protocol
+from .base import IMPLAUSIBLE, MAX_T_S, NAN, Z_ONLY, Axes3, Frame, FrameError, Mask3, Protocol
 
 MAX_LINE_LEN = 256
+MAX_RATE_DPH = 3.4e38  # float32's range: every output format can carry it
 FIELD_COUNTS = {"R": 3, "T": 3, "I": 4, "C": 8}
 _DSP3000_LINE = re.compile(r"^(\s*)(\S+)(\s+[01]\s*)$")
 
@@ -25,7 +33,26 @@ def _number(text: str) -> float:
 
 
 def _time(text: str) -> float | None:
-    return _number(text) if text.strip() else None
+    if not text.strip():
+        return None
+    t_s = _number(text)
+    if not abs(t_s) <= MAX_T_S:  # also NaN
+        raise FrameError("bad_line", f"ascii: time {text[:40]!r} is not a usable time")
+    return t_s
+
+
+def _rate(value: float, text: str) -> float:
+    if abs(value) > MAX_RATE_DPH:  # NaN and Inf stay: they mark the axis invalid
+        raise FrameError("bad_line", f"ascii: rate {text[:40]!r} is out of range")
+    return value
+
+
+def checksum(body: bytes) -> bytes:
+    """The two hex digits of the XOR of `body`'s bytes (NMEA 0183's checksum)."""
+    value = 0
+    for byte in body:
+        value ^= byte
+    return b"%02X" % value
 
 
 def _text(value: float | None) -> str:
@@ -46,7 +73,12 @@ class AsciiProtocol(Protocol):
     seq_modulus = None
     line_based = True
 
-    def __init__(self, rotfmt: str = "rate", rate_hz: float | None = None) -> None:
+    def __init__(self, rotfmt: str = "rate", rate_hz: float | None = None, max_jump_dph: float | None = None) -> None:
+        if max_jump_dph is not None and not max_jump_dph > 0:
+            raise ConfigError(f"ascii: max_jump_dph must be positive, not {max_jump_dph!r}")
+        self.max_jump_dph = max_jump_dph
+        self._previous_dph = NAN  # the plausibility check's previous rate and last accepted rate
+        self._accepted_dph = NAN
         if rotfmt not in ("rate", "delta"):
             raise ConfigError(f"ascii: rotfmt must be 'rate' or 'delta', not {rotfmt!r}")
         if rotfmt == "delta" and not (rate_hz and rate_hz > 0):
@@ -73,7 +105,32 @@ class AsciiProtocol(Protocol):
         except UnicodeDecodeError:
             raise FrameError("bad_line", "ascii: line is not ASCII") from None
         if "," not in line:
-            return self._decode_dsp3000(line, raw)
+            return self._plausible(self._decode_dsp3000(line, raw))
+        checked = False
+        if "*" in line:
+            line, _, digits = line.rpartition("*")
+            if checksum(line.encode("ascii")) != digits.upper().encode("ascii"):
+                raise FrameError("bad_crc", "ascii: checksum mismatch")
+            checked = True
+        frame = self._decode_fogd(line, raw)
+        return frame if checked or frame.kind not in ("rate", "imu") else self._plausible(frame)
+
+    def _plausible(self, frame: Frame) -> Frame:
+        """The plausibility check for a line nothing else checks: flag a jump from both the previous rate
+        and the last accepted one (a spike is flagged alone, a real step costs one sample)."""
+        if self.max_jump_dph is None or not frame.axis_valid[2]:
+            return frame
+        rate = frame.rate_dph[2]
+        jump = self.max_jump_dph
+        previous, self._previous_dph = self._previous_dph, rate
+        if abs(rate - previous) > jump and abs(rate - self._accepted_dph) > jump:
+            frame.axis_valid = (False, False, False)
+            frame.flags |= IMPLAUSIBLE
+            return frame
+        self._accepted_dph = rate
+        return frame
+
+    def _decode_fogd(self, line: str, raw: bytes) -> Frame:
         fields = line.split(",")
         tag = fields[0].strip()
         if FIELD_COUNTS.get(tag) != len(fields):
@@ -81,7 +138,7 @@ class AsciiProtocol(Protocol):
         t_s = _time(fields[1])
         if tag == "T":
             return Frame("ascii", "temp", "T", None, t_s, temp_c=_number(fields[2]), raw=raw)
-        rates, valid = _z_axis(_number(fields[2]))
+        rates, valid = _z_axis(_rate(_number(fields[2]), fields[2]))
         if tag == "R":
             return Frame("ascii", "rate", "R", None, t_s, rates, valid, Z_ONLY, None, raw)
         if tag == "I":
@@ -98,7 +155,7 @@ class AsciiProtocol(Protocol):
         fields = line.split()
         if len(fields) != 2 or fields[1] not in ("0", "1"):
             raise FrameError("bad_line", f"ascii: not a DSP-3000 line: {line[:40]!r}")
-        rates, valid = _z_axis(_number(fields[0]) * self.dsp3000_dph_per_unit)
+        rates, valid = _z_axis(_rate(_number(fields[0]) * self.dsp3000_dph_per_unit, fields[0]))
         valid = (False, False, valid[2] and fields[1] == "1")
         return Frame("ascii", "rate", "dsp3000", None, None, rates, valid, Z_ONLY, None, raw)
 
@@ -127,7 +184,8 @@ class AsciiProtocol(Protocol):
             )
         else:
             raise ValueError(f"ascii: lines carry kind 'rate', 'temp', 'imu' or 'comp', not {frame.kind!r}")
-        return (line + "\n").encode("ascii")
+        body = line.encode("ascii")
+        return body + b"*" + checksum(body) + b"\n"
 
     def reencode(self, frame: Frame, rate_dph: Sequence[float]) -> bytes:
         raw = frame.raw
@@ -140,9 +198,13 @@ class AsciiProtocol(Protocol):
             new_value = f"{rate_dph[2] / self.dsp3000_dph_per_unit:{len(lead) + len(value)}.{decimals}f}"
             return (new_value + rest + text[len(text.rstrip("\r\n")) :]).encode("ascii")
         body = text.rstrip("\r\n")
+        body, star, _ = body.rpartition("*") if "*" in body else (body, "", "")
         fields = body.split(",")
         fields[2] = repr(float(rate_dph[2]))
-        return (",".join(fields) + text[len(body) :]).encode("ascii")
+        line = ",".join(fields)
+        if star:
+            line += "*" + checksum(line.encode("ascii")).decode("ascii")
+        return (line + text[len(text.rstrip("\r\n")) :]).encode("ascii")
 
 
 def _or_nan(value: float | None) -> float:

@@ -16,6 +16,8 @@ Mask3 = tuple[bool, bool, bool]
 ALL_AXES: Mask3 = (True, True, True)
 NO_AXES: Mask3 = (False, False, False)
 Z_ONLY: Mask3 = (False, False, True)
+IMPLAUSIBLE = 0x8000  # Frame.flags of a rate frame: the plausibility check marked its axis invalid
+MAX_T_S = 2.0**53 / 1e6  # device times beyond this (285 years in us) are no clock's: the frame is refused
 
 
 @dataclass(slots=True)

@@ -11,7 +11,7 @@ import struct
 from collections.abc import Sequence
 
 from ..errors import ConfigError
-from .base import NAN, Axes3, Frame, FrameError, Mask3, Protocol
+from .base import MAX_T_S, NAN, Axes3, Frame, FrameError, Mask3, Protocol
 from .crc import crc16_ccitt_false, crc16_ccitt_false_ok
 
 SYNC = b"\xf0\x0d"
@@ -19,6 +19,7 @@ TYPE_RATE = 0x01
 TYPE_TEMP = 0x02
 TYPE_COMP = 0x03
 SEQ_MODULUS = 1 << 16
+MAX_TIME_US = round(MAX_T_S * 1e6)
 
 _HEADER = struct.Struct(">2sBBHQ")  # sync, type, length (whole frame), seq, device time (us)
 _RATE = struct.Struct(">3fB")  # rate xyz (deg/h), axes
@@ -84,6 +85,8 @@ class FogdProtocol(Protocol):
         sync, frame_type, length, seq, time_us = _HEADER.unpack_from(raw)
         if sync != SYNC or length != len(raw) or FRAME_LENGTHS.get(frame_type, length) != length:
             raise ValueError(f"fogd: not a whole fogd frame ({len(raw)} bytes)")
+        if time_us > MAX_TIME_US:  # the CRC passed, but no clock says this: not encodable in any output
+            raise FrameError("bad_value", f"fogd: device time {time_us} us is beyond 2^53 us")
         t_s = time_us / 1e6
         if frame_type == TYPE_RATE:
             x, y, z, axes = _RATE.unpack_from(raw, HEADER_LEN)
@@ -124,6 +127,8 @@ class FogdProtocol(Protocol):
             raise ValueError(f"fogd: frames carry kind 'rate', 'temp' or 'comp', not {frame.kind!r}")
         seq = (frame.seq or 0) % SEQ_MODULUS
         time_us = round(frame.t_s * 1e6)
+        if not 0 <= time_us <= MAX_TIME_US:
+            raise ValueError(f"fogd: t_s {frame.t_s!r} is outside 0..2^53 us")
         body = _HEADER.pack(SYNC, frame_type, FRAME_LENGTHS[frame_type], seq, time_us) + payload
         return body + _CRC.pack(crc16_ccitt_false(body))
 
