@@ -224,10 +224,15 @@ def check(settings: dict[str, Any], *, demo: bool) -> None:
     if settings["protocol"] == "ascii" and settings["axis"] != "z":
         raise ConfigError("key 'axis': protocol ascii carries the z axis only; use axis z")
     model = settings["model"]
-    if not os.path.exists(model):
+    try:
+        os.stat(model)
+    except PermissionError:
+        raise ConfigError(f"key 'model': {model}: permission denied (fogd's user must be able to read it and "
+                          "its directories)") from None  # fmt: skip
+    except OSError:
         raise ConfigError(
             f"key 'model': {model}: no such file (train one with fogd-train and install it there, or set model:)"
-        )
+        ) from None
 
 
 def stats_path(setting: str | None, instance: str) -> str | None:
