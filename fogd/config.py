@@ -14,6 +14,7 @@ import difflib
 import ipaddress
 import math
 import os
+import reprlib
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -21,6 +22,7 @@ import yaml
 
 from fogd import protocols
 from fogd.cli.common import number_in, whole_number
+from fogd.atomic import read_regular
 from fogd.errors import ConfigError, describe_os_error
 
 CONFIG_DIR = "/etc/fogd"
@@ -29,6 +31,8 @@ DEFAULT_INSTANCE = "fogd"
 DEFAULT_MODEL = "/var/lib/fogd/model.json"
 RUNTIME_DIR = "/run/fogd"
 MAX_CONFIG_BYTES = 1 << 20
+MAX_YAML_NODES = 10_000
+MAX_SCALAR_CHARS = 1024
 AXES = ("x", "y", "z")
 OUT_FORMATS = ("same", "fogd", "csv", "jsonl")
 NONE_WORDS = ("none", "off")  # for optional paths on the command line
@@ -137,14 +141,15 @@ def default_config_path(instance: str | None) -> str | None:
 def load(path: str) -> dict[str, Any]:
     """Settings from a YAML file, each checked like its command-line option; ConfigError names the key."""
     try:
-        with open(path, "rb") as stream:
-            text = stream.read(MAX_CONFIG_BYTES + 1)
+        text = read_regular(path, MAX_CONFIG_BYTES)
     except OSError as error:
         raise ConfigError(f"cannot read config {describe_os_error(error)}") from None
     if len(text) > MAX_CONFIG_BYTES:
         raise ConfigError(f"{path}: larger than {MAX_CONFIG_BYTES // 1024} KiB; not a fogd config")
     try:
-        document = yaml.safe_load(text)
+        document = yaml.load(text, Loader=_ConfigLoader)  # noqa: S506 (a SafeLoader, bounded)
+    except ValueError as error:  # Python's own limits (a huge integer) surfacing through the constructor
+        raise ConfigError(f"{path}: not a fogd config ({str(error)[:80]})") from None
     except yaml.YAMLError as error:
         where = getattr(error, "problem_mark", None)
         line = f":{where.line + 1}" if where is not None else ""
@@ -205,8 +210,43 @@ def _value(path: str, option: Option, value: Any) -> Any:
 
 
 def _show(value: Any) -> str:
-    text = repr(value)
+    text = _SHORT.repr(value)  # never the whole value: it may be huge
     return text if len(text) <= 40 else text[:37] + "..."
+
+
+_SHORT = reprlib.Repr()
+_SHORT.maxstring = _SHORT.maxother = _SHORT.maxlong = 40
+_SHORT.maxlevel = 2
+
+
+class _ConfigLoader(yaml.SafeLoader):
+    """YAML's safe loader, bounded: no aliases (an alias bomb expands a few lines into gigabytes), at most
+    MAX_YAML_NODES nodes, scalars of at most MAX_SCALAR_CHARS characters, no key given twice."""
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        if self.check_event(yaml.AliasEvent):
+            raise yaml.composer.ComposerError(None, None, "aliases (*name) are not allowed in a fogd config",
+                                              self.peek_event().start_mark)  # fmt: skip
+        self._nodes = getattr(self, "_nodes", 0) + 1
+        if self._nodes > MAX_YAML_NODES:
+            raise yaml.composer.ComposerError(None, None, f"more than {MAX_YAML_NODES} values; not a fogd config",
+                                              self.peek_event().start_mark)  # fmt: skip
+        node = super().compose_node(parent, index)
+        if isinstance(node, yaml.ScalarNode) and len(node.value) > MAX_SCALAR_CHARS:
+            raise yaml.composer.ComposerError(None, None, f"a value longer than {MAX_SCALAR_CHARS} characters",
+                                              node.start_mark)  # fmt: skip
+        return node
+
+    def construct_mapping(self, node: Any, deep: bool = False) -> Any:
+        seen: set[str] = set()
+        for key_node, _ in node.value:
+            if isinstance(key_node, yaml.ScalarNode):
+                if key_node.value in seen:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f"key {key_node.value[:40]!r} appears twice", key_node.start_mark
+                    )
+                seen.add(key_node.value)
+        return super().construct_mapping(node, deep=deep)
 
 
 def merge(config: dict[str, Any], command_line: dict[str, Any]) -> dict[str, Any]:

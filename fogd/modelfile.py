@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from fogd import __version__
+from fogd.atomic import read_regular, replaced
 from fogd.domain import DomainGuard
 from fogd.errors import ModelFileError, NoModelFileError, describe_os_error
 from fogd.estimator import EstimatorSettings
@@ -59,13 +60,14 @@ _BINARY_MAGIC = {
 }
 
 
-def save(path: str | Path, document: dict[str, Any]) -> None:
-    """Write a model document (as built by `document()`), checking it loads back first."""
+def save(path: str | Path, document: dict[str, Any], *, inputs: list[str] = ()) -> None:
+    """Write a model document (as built by `document()`), checking it loads back first. The file is replaced
+    whole (fogd.atomic): on a full disk the old model stays as it was; an output that is an input is refused."""
     from_document(document, source=str(path))
     text = json.dumps(document, indent=1, allow_nan=False)
     try:
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        Path(path).write_text(text + "\n", encoding="utf-8")
+        with replaced(str(path), inputs=inputs) as stream:
+            stream.write(text + "\n")
     except OSError as error:
         raise ModelFileError(f"cannot write model: {describe_os_error(error)}") from None
 
@@ -113,8 +115,7 @@ def load(path: str | Path) -> FrozenModel:
     """Read and validate a model file; raises ModelFileError with one line saying what is wrong."""
     source = str(path)
     try:
-        with open(path, "rb") as stream:
-            data = stream.read(MAX_MODEL_BYTES + 1)
+        data = read_regular(path, MAX_MODEL_BYTES)  # never blocks: a FIFO here would hang start-up or a reload
     except OSError as error:
         raise NoModelFileError(f"cannot read model: {describe_os_error(error)}") from None
     if len(data) > MAX_MODEL_BYTES:

@@ -19,6 +19,7 @@ from typing import IO, Iterator
 
 import numpy as np
 
+from fogd.atomic import replaced
 from fogd.errors import InputError, NoInputError, describe_os_error
 
 RUN_COLUMNS = ("t_s", "rate_dph", "temp_c")
@@ -219,26 +220,33 @@ def open_output(path: str) -> IO[str]:
         raise InputError(f"cannot write {path}: {error.strerror or error}") from None
 
 
-def write_csv(path: str, columns: dict[str, np.ndarray], formats: dict[str, str], *, comments: list[str] = ()) -> None:
-    """Write equal-length columns as CSV (header from the dict's keys), in chunks to bound memory."""
+def write_csv(
+    path: str, columns: dict[str, np.ndarray], formats: dict[str, str], *, comments: list[str] = (), inputs: list[str] = ()
+) -> None:
+    """Write equal-length columns as CSV (header from the dict's keys), in chunks to bound memory. A file is
+    replaced whole (fogd.atomic): a failed write leaves the old one as it was; an output that is one of
+    `inputs` is refused."""
     names = list(columns)
     length = len(next(iter(columns.values())))
     fmt = ",".join(formats.get(name, "%.9g") for name in names)
-    stream = open_output(path)
-    try:
+
+    def write(stream: IO[str]) -> None:
         for line in comments:
             stream.write(f"# {line}\n")
         stream.write(",".join(names) + "\n")
         for start, stop in _chunks(length, 200_000):
             block = np.column_stack([np.asarray(columns[name][start:stop], dtype=np.float64) for name in names])
             np.savetxt(stream, block, fmt=fmt, delimiter=",")
+
+    try:
+        if path == "-":
+            write(sys.stdout)
+            sys.stdout.flush()
+            return
+        with replaced(path, inputs=inputs) as stream:
+            write(stream)
     except OSError as error:
         raise InputError(f"cannot write {path}: {describe_os_error(error)}") from None
-    finally:
-        if stream is not sys.stdout:
-            stream.close()
-        else:
-            stream.flush()
 
 
 def _chunks(length: int, size: int) -> Iterator[tuple[int, int]]:

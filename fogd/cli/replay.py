@@ -9,6 +9,7 @@ from typing import Sequence
 import numpy as np
 
 from fogd import modelfile
+from fogd.atomic import refuse_inputs
 from fogd.errors import ModelFileError, NoModelFileError, UsageError
 from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, non_negative_float, positive_float, run
 from fogd.flags import Flag
@@ -59,6 +60,9 @@ def body(argv: Sequence[str] | None) -> int:
     args = parser().parse_args(argv)
     if args.allan_plot and os.path.isdir(args.allan_plot):
         raise UsageError(f"--allan-plot {args.allan_plot}: a directory; give a file name such as allan.png")
+    for output in (args.output, args.allan_plot):
+        if output and output != "-":
+            refuse_inputs(output, [args.model, args.run])
     model = load_model(args.model, args.run)
     recorded = read_run(args.run)
     result = replay(model, recorded)
@@ -76,6 +80,7 @@ def body(argv: Sequence[str] | None) -> int:
                 "flags": result.flags,
             },
             OUTPUT_FORMATS,
+            inputs=[args.model, args.run],
         )
     table = replay_table(recorded, result, args.block_s, settle_s=args.settle_s)
     report = sys.stderr if args.output == "-" else sys.stdout

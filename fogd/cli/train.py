@@ -7,6 +7,7 @@ import sys
 from typing import Sequence
 
 from fogd import modelfile
+from fogd.atomic import refuse_inputs
 from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, non_negative_float, positive_float, positive_int, run
 from fogd.errors import InputError, UsageError
 from fogd.estimator import EstimatorSettings
@@ -118,6 +119,8 @@ def body(argv: Sequence[str] | None) -> int:
     args = parser().parse_args(argv)
     if not args.output and not args.compare:
         raise UsageError(f"give -o MODEL.json (or --compare to only compare methods) (see {PROG} --help)")
+    if args.output:
+        refuse_inputs(args.output, [*args.runs, *args.holdout])  # before minutes of fitting, not after
     auto = args.method == "auto"
     try:
         estimator = EstimatorSettings(args.window_s, args.average_s, args.step_s)
@@ -203,7 +206,7 @@ def body(argv: Sequence[str] | None) -> int:
         print(error_table(_holdout_rows(trained, holdout, args.block_s)))
     if args.output:
         _never_worse_than_nothing(chosen, held_out_dph, args.force)
-        modelfile.save(args.output, chosen.document)
+        modelfile.save(args.output, chosen.document, inputs=[*args.runs, *args.holdout])
         print(f"\nwrote {args.output} ({label}, {chosen.model.name})", file=sys.stderr)
     if args.report:
         from fogd.report import write_report  # matplotlib only when a report is asked for
