@@ -126,6 +126,8 @@ def _training_summary(trained: dict[str, Trained], chosen: str, block_s: float) 
 
 
 def _hyper(values: dict[str, Any]) -> str:
+    if "epsilon_dph" in values:  # the tube in deg/h, as fogd-train's fit line: not the scaled epsilon too
+        values = {k: v for k, v in values.items() if k != "epsilon"}
     return ", ".join(f"{k}={v:.4g}" if isinstance(v, (float, np.floating)) else f"{k}={v}" for k, v in values.items()) or "-"
 
 
