@@ -41,7 +41,13 @@ NONE_WORDS = ("none", "off")  # for optional paths on the command line
 def _text(text: str) -> str:
     if not text:
         raise argparse.ArgumentTypeError("must not be empty")
+    if not text.isprintable():  # a newline in a path or name would forge log lines and systemd fields
+        raise argparse.ArgumentTypeError(f"{_show(text)} holds a control character")
     return text
+
+
+def _optional_jump(text: str) -> float | None:
+    return None if text.lower() in NONE_WORDS else number_in(0.0, math.inf, "deg/h", low_open=True)(text)
 
 
 def _optional_path(text: str) -> str | None:
@@ -119,6 +125,10 @@ OPTIONS = (
            "'none' disables it (default: %(default)s)", metavar="PATH"),
     Option("metrics_port", _optional_port, "port", None, "serve Prometheus text metrics on this TCP port "
            "(1..65535; default: off)", metavar="PORT"),
+    Option("max_rate_jump_dph", _optional_jump, "port", None, "protocol ascii: flag a rate (axis invalid, "
+           "counted as implausible) that jumps by more than this from both the previous and the last accepted "
+           "rate, on lines without a checksum (DSP-3000 lines always) (deg/h, above 0; default: off)", "deg/h",
+           "DPH", reloadable=False),
     Option("metrics_address", _address, "text", "127.0.0.1", "address the metrics endpoint binds to "
            "(default: %(default)s; anything else exposes it beyond this machine)", metavar="ADDR"),
 )

@@ -1,6 +1,11 @@
 """Optional Prometheus metrics: a stdlib HTTP server on its own thread answering GET /metrics with the
 daemon's counters in the text exposition format. Off unless `metrics_port` is set; binds 127.0.0.1 unless
 `metrics_address` says otherwise. It only reads a snapshot, so a slow scraper never touches the data path.
+
+Network clients must never cost gyro data: at most MAX_CONNECTIONS are served at once (one thread and one
+descriptor each) and a connection that sends nothing for CONNECTION_TIMEOUT_S is closed; connections beyond
+the limit are accepted and closed at once, so idle clients can exhaust neither threads nor the descriptors the
+serial port, the output and the stats file need.
 """
 
 from __future__ import annotations
@@ -15,6 +20,8 @@ from typing import Any, Callable
 from fogd.errors import DeviceError
 
 log = logging.getLogger("fogd.metrics")
+MAX_CONNECTIONS = 16
+CONNECTION_TIMEOUT_S = 5.0
 
 
 def render(snapshot: dict[str, Any]) -> str:
@@ -62,12 +69,38 @@ def render(snapshot: dict[str, Any]) -> str:
 
 class _Server(ThreadingHTTPServer):
     daemon_threads = True
+    block_on_close = False
+    request_queue_size = MAX_CONNECTIONS
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        self._slots = threading.BoundedSemaphore(MAX_CONNECTIONS)
+        self.refused = 0
+        super().__init__(*args, **kwargs)
+
+    def process_request(self, request: Any, client_address: Any) -> None:
+        if not self._slots.acquire(blocking=False):
+            self.refused += 1
+            self.shutdown_request(request)  # over the limit: closed at once, no thread, no descriptor kept
+            return
+        try:
+            super().process_request(request, client_address)
+        except BaseException:
+            self._slots.release()
+            raise
+
+    def process_request_thread(self, request: Any, client_address: Any) -> None:
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            self._slots.release()
 
 
 def serve(snapshot: Callable[[], dict[str, Any]], address: str, port: int) -> ThreadingHTTPServer:
     """Start the endpoint on a daemon thread; DeviceError (one line) if the address cannot be bound."""
 
     class Handler(BaseHTTPRequestHandler):
+        timeout = CONNECTION_TIMEOUT_S  # an idle or slow client is closed, not waited for
+
         def do_GET(self) -> None:  # noqa: N802 (http.server's name)
             if self.path.split("?")[0] != "/metrics":
                 self.send_error(404, "only /metrics here")

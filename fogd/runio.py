@@ -24,6 +24,8 @@ from fogd.errors import InputError, NoInputError, describe_os_error
 
 RUN_COLUMNS = ("t_s", "rate_dph", "temp_c")
 MAX_GAP_PERIODS = 5.0  # a time step longer than this many sample periods is a gap, not jitter
+MIN_RATE_HZ, MAX_RATE_HZ = 1e-3, 100_000.0  # the daemon's range; beyond, t_s is not in seconds (or not a time)
+LONG_LINE_BLOCK = 2048  # a line of twice this many bytes holds a whole aligned block without a newline
 
 
 @dataclass
@@ -61,6 +63,7 @@ def read_run(path: str | Path, *, max_gap_periods: float = MAX_GAP_PERIODS) -> R
         raise NoInputError(describe_os_error(error)) from None
     if not data.strip():
         raise InputError(f"{path}: empty file (expected a header line {','.join(RUN_COLUMNS)} and data rows)")
+    _refuse_long_lines(path, data)
     header_line, names = _header(path, data)
     missing = [name for name in RUN_COLUMNS if name not in names]
     if missing:
@@ -179,12 +182,23 @@ def _first_bad_line(path: str, text: str, header_line: int, width: int) -> str:
     return f"{path}: unreadable data after line {header_line}"
 
 
+def _refuse_long_lines(path: str, data: bytes) -> None:
+    """InputError for a line far longer than any run's (numpy's reader takes several times a line's size in
+    memory): any aligned block of LONG_LINE_BLOCK bytes without a newline, found without splitting the file."""
+    block = LONG_LINE_BLOCK
+    for start in range(0, max(0, len(data) - block + 1), block):
+        if b"\n" not in data[start : start + block]:
+            line = data.count(b"\n", 0, start) + 1
+            raise InputError(f"{path}:{line}: a line longer than {block} bytes; not a run CSV")
+
+
 def _check_time(path: str, t_s: np.ndarray, text: _Text, header_line: int, max_gap_periods: float) -> float:
     """Checks that time increases with no gaps; returns the data rate in Hz."""
     finite = np.flatnonzero(np.isfinite(t_s))
     if finite.size < 2:
         raise InputError(f"{path}: fewer than two rows with a finite time; cannot tell the data rate")
-    step = np.diff(t_s[finite])
+    with np.errstate(over="ignore"):  # times near the float limit: an infinite step, refused below
+        step = np.diff(t_s[finite])
     bad = np.flatnonzero(step <= 0)
     if bad.size:
         row = finite[bad[0] + 1]
@@ -193,6 +207,11 @@ def _check_time(path: str, t_s: np.ndarray, text: _Text, header_line: int, max_g
             f"({t_s[finite[bad[0]]]:.6g} s then {t_s[row]:.6g} s)"
         )
     period_s = float(np.median(step))
+    if not MIN_RATE_HZ <= 1.0 / period_s <= MAX_RATE_HZ:
+        raise InputError(
+            f"{path}: time steps of {period_s:.6g} s ({1.0 / period_s:.6g} Hz) are outside "
+            f"{MIN_RATE_HZ:g}..{MAX_RATE_HZ:g} Hz; is t_s in seconds?"
+        )
     gaps = np.flatnonzero(step > max_gap_periods * period_s)
     if gaps.size:
         row = finite[gaps[0] + 1]

@@ -223,7 +223,9 @@ def check_output(settings: dict[str, Any], *, out_given: bool) -> None:
 
 def make_protocol(settings: dict[str, Any]) -> protocols.Protocol:
     axis = AXES.index(settings["axis"])
-    options: dict[str, Any] = {} if settings["protocol"] == "ascii" else {"comp_axes": (axis,)}
+    options: dict[str, Any] = {"comp_axes": (axis,)}
+    if settings["protocol"] == "ascii":
+        options = {"max_jump_dph": settings.get("max_rate_jump_dph")}
     return protocols.get(settings["protocol"], **options)
 
 
