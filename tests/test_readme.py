@@ -1,0 +1,146 @@
+"""The README's command blocks run as written after its two set-up commands. Every ```sh block is either run
+here, in a scratch directory where `.venv` is this checkout's venv, with options appended for shorter runs
+(never an edit of the README's text), or skipped for a reason named in SKIPPED; a new block that is neither
+fails. Every command in every block calls fogd's tools through a venv, and the set-up lines are what .ci/run
+runs."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from fogd import __version__
+
+ROOT = Path(__file__).resolve().parent.parent
+VENV = Path(sys.executable).parent.parent
+SETUP_DEMO = "python3 -m venv .venv && .venv/bin/pip install -e . && .venv/bin/fogd --demo"
+SETUP_TESTS = "python3 -m venv .venv && .venv/bin/pip install -e '.[test]' && .venv/bin/python -m pytest -q"
+# a line of the block -> why the block is not run here
+SKIPPED = {
+    "config/install-service /opt/fogd": "root and systemd; tests/test_service_install.py runs the install staged",
+    "fogd-record --port /dev/ttyUSB0": "needs a gyro on a serial port",
+    "tools/accuracy_table.py --quick": "about 20 minutes",
+    "tools/bench.py       #": "about 8 minutes",
+    "-m pytest -q           # the suite": "the suite itself",
+}
+# a command in a run block -> options appended to it: shorter runs, nothing else
+APPENDED = {
+    ".venv/bin/fogd-sim --profile": "--rate-hz 10",
+    ".venv/bin/fogd-train heat.csv cool.csv -o model.json": "--particles 6 --iterations 3 -q",
+    ".venv/bin/fogd --port /tmp/fog0": "--duration-s 4",
+    ".venv/bin/fogd --demo --stats-file": "--duration-s 15",
+    ".venv/bin/fogd-top --stats-file": "--count 6 --ascii",
+}
+SEPARATORS = re.compile(r"(\s+#.*$|\s*&&\s*|\s*;\s*|\s+&(?=\s|$)\s*|\s*\|\s*)")
+TOOLS = re.compile(r"^(fogd[\w-]*|python3?|pip3?|pytest)(\s|$)")
+
+
+def sh_blocks() -> list[str]:
+    text = (ROOT / "README.md").read_text()
+    return [match.group(1) for match in re.finditer(r"^```sh\n(.*?)^```", text, flags=re.S | re.M)]
+
+
+def append_options(line: str, options: dict[str, str]) -> str:
+    """`line` with the options for each command it holds appended to that command (before a `#` comment,
+    `&`, `;`, `&&` or `|`)."""
+    parts = SEPARATORS.split(line)
+    for index in range(0, len(parts), 2):
+        for command, extra in options.items():
+            if parts[index].startswith(command):
+                parts[index] = f"{parts[index]} {extra}"
+    return "".join(parts)
+
+
+def run_block(block: str, cwd: Path, timeout_s: float = 150.0) -> subprocess.CompletedProcess:
+    """The block as a bash script (stopping at the first failure); its background jobs are stopped after."""
+    script = "set -e\n" + "\n".join(append_options(line, APPENDED) for line in block.splitlines()) + "\n"
+    # files, not pipes: a background job (fogd-emu started with '&') holds them open after the script ends
+    with open(cwd / "block.stdout", "w+") as stdout, open(cwd / "block.stderr", "w+") as stderr:
+        process = subprocess.Popen(["bash", "-c", script], cwd=cwd, stdout=stdout, stderr=stderr, text=True,
+                                   start_new_session=True, env={**os.environ, "MPLBACKEND": "Agg"})  # fmt: skip
+        try:
+            process.wait(timeout_s)
+        finally:
+            try:
+                os.killpg(process.pid, signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+            if process.poll() is None:
+                process.kill()
+                process.wait()
+        stdout.seek(0)
+        stderr.seek(0)
+        return subprocess.CompletedProcess(script, process.returncode, stdout.read(), stderr.read())
+
+
+@pytest.fixture(scope="module")
+def scratch(tmp_path_factory) -> Path:
+    """The repository's root as a newcomer has it after the set-up commands, without writing into the
+    checkout: .venv is this venv, and the files the blocks read are linked in."""
+    where = tmp_path_factory.mktemp("newcomer")
+    (where / ".venv").symlink_to(VENV)
+    for name in ("config", "tools", "README.md", "pyproject.toml"):
+        (where / name).symlink_to(ROOT / name)
+    return where
+
+
+def test_every_block_is_run_or_skipped_for_a_reason_and_calls_the_venvs_tools():
+    blocks = sh_blocks()
+    assert blocks[0].splitlines() == [SETUP_DEMO, SETUP_TESTS]
+    for block in blocks:
+        for line in block.splitlines():
+            for command in SEPARATORS.split(line)[::2]:
+                command = command.strip()
+                bare = TOOLS.match(command)
+                # a bare fogd or python after the set-up is "command not found" or the wrong python
+                assert not bare or command.startswith("python3 -m venv "), f"not through a venv: {line!r}"
+    skipped = [block for block in blocks if any(key in block for key in SKIPPED)]
+    assert len(skipped) == len(SKIPPED), "a SKIPPED entry matches no block (or two): update the test with the README"
+    ran = [block for block in blocks[1:] if block not in skipped]
+    assert len(ran) == 3, "a new README block: run it in a test here, or skip it for a reason in SKIPPED"
+
+
+def test_set_up_lines_are_what_ci_runs():
+    ci = (ROOT / ".ci" / "run").read_text().splitlines()[-1]
+    assert ci.replace("pip install -q ", "pip install ") == SETUP_TESTS
+
+
+def test_the_demo_runs_and_says_what_its_columns_mean(scratch):
+    demo = SETUP_DEMO.split(" && ")[-1]
+    result = run_block(f"{demo} --duration-s 6", scratch, timeout_s=60)
+    assert result.returncode == 0, result.stderr
+    assert result.stderr.count("columns: rate = ") == 1
+    lines = [line for line in result.stderr.splitlines() if line.startswith("rate ")]
+    assert lines and "\r" not in result.stderr and "\x1b" not in result.stderr  # stderr is a pipe: plain lines
+    temps = [float(re.search(r" T +(-?[\d.]+) C ", line).group(1)) for line in lines]
+    assert max(temps) > 0.0, result.stderr  # the chamber is already warming the gyro from 0 C
+
+
+def test_calibration_live_and_watch_blocks_run_as_written(scratch):
+    blocks = [block for block in sh_blocks()[1:] if not any(key in block for key in SKIPPED)]
+    calibration, live, watch = blocks
+
+    result = run_block(calibration, scratch)
+    assert result.returncode == 0, result.stderr[-3000:]
+    for name in ("heat.csv", "cool.csv", "test.csv", "model.json", "compensated.csv", "report/report.md"):
+        assert (scratch / name).stat().st_size > 0, name
+    assert "Table 4: test.csv" in result.stdout
+
+    result = run_block(live, scratch)
+    assert result.returncode == 0, result.stderr[-3000:]
+    lines = result.stdout.splitlines()  # fogd-emu's pty path, then fogd's CSV
+    header = lines.index("t_s,rate_dph,temp_c,temp_rate_cps,comp_dph,rate_comp_dph,flags")
+    assert len(lines) - header > 100, result.stderr
+
+    result = run_block(watch, scratch)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    frames = result.stdout.split("\n\n")
+    assert sum("  running  " in frame for frame in frames) >= 2, result.stdout
+    assert f"fogd {__version__} pid " in result.stdout and "running, up" in result.stdout  # fogd --status
+    assert "\x1b" not in result.stdout  # a pipe gets plain frames
