@@ -5,7 +5,9 @@ Both are single-axis: the rate is the z axis (index 2), x and y are absent. A li
 rejected whole and counted as `bad_line`; blank lines are skipped as garbage.
 
 fogd's lines may end in an NMEA-style checksum, `*HH`: the XOR of every byte before the `*`, in two hex digits.
-fogd writes it and checks it when present (a mismatch counts as `bad_crc`); a line without one, and every
+fogd writes it and checks it when present (a mismatch counts as `bad_crc`), and once a sender has sent one,
+a line without one is refused too (a flipped `*` becomes a newline). A line from a sender without checksums,
+and every
 DSP-3000 line, carries nothing that detects a flipped digit. For those, `max_jump_dph` adds a plausibility
 check: a rate that jumps by more than that from both the previous rate and the last accepted one has its axis
 marked invalid (`IMPLAUSIBLE` in the frame's flags; the lexer counts it). A time or rate beyond what the
@@ -77,6 +79,7 @@ class AsciiProtocol(Protocol):
         if max_jump_dph is not None and not max_jump_dph > 0:
             raise ConfigError(f"ascii: max_jump_dph must be positive, not {max_jump_dph!r}")
         self.max_jump_dph = max_jump_dph
+        self._checksummed = False  # once a sender has sent a checksum, every fogd line must carry one
         self._previous_dph = NAN  # the plausibility check's previous rate and last accepted rate
         self._accepted_dph = NAN
         if rotfmt not in ("rate", "delta"):
@@ -111,7 +114,9 @@ class AsciiProtocol(Protocol):
             line, _, digits = line.rpartition("*")
             if checksum(line.encode("ascii")) != digits.upper().encode("ascii"):
                 raise FrameError("bad_crc", "ascii: checksum mismatch")
-            checked = True
+            checked = self._checksummed = True
+        elif self._checksummed:  # a flipped '*' (0x2A -> 0x0A, a newline) must not turn a line unchecked
+            raise FrameError("bad_crc", "ascii: checksum missing from a sender that sends them")
         frame = self._decode_fogd(line, raw)
         return frame if checked or frame.kind not in ("rate", "imu") else self._plausible(frame)
 

@@ -19,6 +19,7 @@ TYPE_RATE = 0x01
 TYPE_TEMP = 0x02
 TYPE_COMP = 0x03
 SEQ_MODULUS = 1 << 16
+F32_MAX = 3.4028234663852886e38
 MAX_TIME_US = round(MAX_T_S * 1e6)
 
 _HEADER = struct.Struct(">2sBBHQ")  # sync, type, length (whole frame), seq, device time (us)
@@ -109,19 +110,19 @@ class FogdProtocol(Protocol):
         if frame.t_s is None:
             raise ValueError("fogd: a fogd frame needs t_s")
         if frame.kind == "rate":
-            payload = _RATE.pack(*_rates(frame.rate_dph), _axes_byte(frame.axis_valid, frame.axis_present))
+            payload = _pack(_RATE, *_rates(frame.rate_dph), _axes_byte(frame.axis_valid, frame.axis_present))
             frame_type = TYPE_RATE
         elif frame.kind == "temp":
-            payload = _TEMP.pack(NAN if frame.temp_c is None else frame.temp_c)
+            payload = _pack(_TEMP, NAN if frame.temp_c is None else frame.temp_c)
             frame_type = TYPE_TEMP
         elif frame.kind == "comp":
-            payload = _COMP.pack(
-                *_rates(frame.rate_dph), *_rates(frame.comp_dph), *_rates(frame.rate_comp_dph),
+            payload = _pack(
+                _COMP, *_rates(frame.rate_dph), *_rates(frame.comp_dph), *_rates(frame.rate_comp_dph),
                 _axes_byte(frame.axis_valid, frame.axis_present),
                 NAN if frame.temp_c is None else frame.temp_c,
                 NAN if frame.temp_rate_cps is None else frame.temp_rate_cps,
                 frame.flags,
-            )
+            )  # fmt: skip
             frame_type = TYPE_COMP
         else:
             raise ValueError(f"fogd: frames carry kind 'rate', 'temp' or 'comp', not {frame.kind!r}")
@@ -139,9 +140,24 @@ class FogdProtocol(Protocol):
         out = bytearray(raw)
         for axis in self.comp_axes:
             if frame.axis_valid[axis]:
-                _F32.pack_into(out, HEADER_LEN + 4 * axis, rate_dph[axis])
+                try:
+                    _F32.pack_into(out, HEADER_LEN + 4 * axis, rate_dph[axis])
+                except OverflowError:  # beyond float32 (a rate near its limit, compensated): infinity
+                    _F32.pack_into(out, HEADER_LEN + 4 * axis, f32(rate_dph[axis]))
         _CRC.pack_into(out, len(out) - 2, crc16_ccitt_false(out[:-2]))
         return bytes(out)
+
+
+def f32(value: float) -> float:
+    """`value` as float32 can carry it: beyond its range, infinity of the same sign (never OverflowError)."""
+    return value if not abs(value) > F32_MAX else math.copysign(math.inf, value)
+
+
+def _pack(layout: struct.Struct, *values: float) -> bytes:
+    try:
+        return layout.pack(*values)
+    except OverflowError:  # a float beyond float32's range: rare, so the check is not paid per frame
+        return layout.pack(*(f32(value) if isinstance(value, float) else value for value in values))
 
 
 def _rates(values: Sequence[float] | None) -> Axes3:

@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from ..errors import ConfigError
 from .base import ALL_AXES, NAN, Axes3, Frame, FrameError, Mask3, Protocol
 from .crc import crc32_mpeg2, crc32_mpeg2_ok
+from .fogdbin import f32
 
 HEADER_A = b"\xfe\x81\xff\x55"
 HEADER_B = b"\xfe\x81\xff\x56"
@@ -168,7 +169,10 @@ class KvhProtocol(Protocol):
     def _wire_temp(self, temp_c: float | None) -> int:
         if temp_c is None or not math.isfinite(temp_c):
             raise ValueError("kvh-a: Formats A and B need a finite temperature")
-        return round(temp_c * 9.0 / 5.0 + 32.0 if self.temp_unit == "F" else temp_c)
+        wire = round(temp_c * 9.0 / 5.0 + 32.0 if self.temp_unit == "F" else temp_c)
+        if not -32768 <= wire <= 32767:
+            raise ValueError(f"kvh-a: temperature {temp_c!r} C does not fit Format A/B's int16")
+        return wire
 
     def reencode(self, frame: Frame, rate_dph: Sequence[float]) -> bytes:
         raw = frame.raw
@@ -177,7 +181,11 @@ class KvhProtocol(Protocol):
         out = bytearray(raw)
         for axis in self.comp_axes:
             if frame.axis_valid[axis]:
-                _GYRO.pack_into(out, 4 + 4 * axis, rate_dph[axis] / self.dph_per_unit)
+                value = rate_dph[axis] / self.dph_per_unit
+                try:
+                    _GYRO.pack_into(out, 4 + 4 * axis, value)
+                except OverflowError:  # beyond float32 (a rate near its limit, compensated): infinity
+                    _GYRO.pack_into(out, 4 + 4 * axis, f32(value))
         _CRC.pack_into(out, len(out) - 4, crc32_mpeg2(out[:-4]))
         return bytes(out)
 
