@@ -37,6 +37,9 @@ DEMO_MODEL = Path(__file__).resolve().parent.parent / "data" / "demo-model.json"
 DEMO_PROFILE = Profile("demo-cycle", ((0.0, 0.0), (2.0 * HOUR_S, 30.0), (0.5 * HOUR_S, 30.0), (2.0 * HOUR_S, 0.0)))
 DEMO_START_S = 1200.0
 DEMO_RATE_HZ = 100.0
+# fogd frames carry the sensor's 0.0625 C temperature: its rate is smooth. A KVH's whole degrees (--protocol
+# kvh-a) make the eq. 16 rate a pulse at each degree, which is the truth about a KVH, not a first impression.
+DEMO_PROTOCOL = "fogd"
 DEMO_SPEED = 60.0  # four and a half chamber hours in four and a half minutes
 DEMO_LINE_EVERY_S = 5.0  # when stderr is not a terminal: a plain line this often instead of the live line
 DEMO_LEGEND = (
@@ -118,8 +121,9 @@ def demo(settings: dict[str, Any], protocol: protocols.Protocol, model, *, out_g
     emulator = Emulator(source, protocol.name, speed=DEMO_SPEED, wait_reader=True, drain_timeout_s=0.0)
     path = emulator.start()
     print(
-        f"fogd demo: simulated FOG on {path} (chamber {DEMO_PROFILE.describe()}; from {DEMO_START_S:g} s, "
-        f"at {DEMO_SPEED:g}x real time, "
+        f"fogd demo: simulated FOG on {path} (chamber 0 -> 30 C in 2 h, 30 min at 30 C, back to 0 C in 2 h; from "
+        f"{DEMO_START_S / 60:g} min in, "
+        f"at {DEMO_SPEED:g}x real time, {protocol.name} frames, "
         f"{DEMO_RATE_HZ:g} Hz), model {model.name}; Ctrl-C to stop\n{DEMO_LEGEND}",
         file=sys.stderr,
     )
@@ -190,6 +194,8 @@ def body(argv: Sequence[str] | None) -> int:
         return status(args)
     sources = Settings(args)
     settings = sources.read()
+    if args.demo and not sources.given("protocol"):
+        settings["protocol"] = DEMO_PROTOCOL
     configure_logging(args.verbose, args.quiet)
     protocol = make_protocol(settings)
     model = modelfile.load(settings["model"])
