@@ -55,6 +55,7 @@ HISTORY_POINTS = 60  # the stats file's history: the latest sample at each of th
 RELOAD_TIMEOUT_S = 10.0  # a reload still preparing after this long is stuck (a FIFO, a hung filesystem)
 READER_STALL_S = 2.0  # a reader that has not come round its loop for this long is hung (its waits are <= 0.2 s)
 HISTORY_FIELDS = ("uptime_s", "temp_c", "temp_rate_cps", "comp_dph", "flags")
+NOT_DROPS = ("frames_ok", "other_frames", "frame_bytes", "seq_resets")  # lexer counters that count no loss
 _OUT_OF_DOMAIN, _CLAMPED = int(Flag.OUT_OF_DOMAIN), int(Flag.CLAMPED)
 
 
@@ -443,7 +444,7 @@ class Daemon:
         latest = self.latest
         frames_in = " ".join(f"{kind} {count}" for kind, count in reader.frames_in.items() if count)
         drops = " ".join(
-            f"{name} {value}" for name, value in lexer.as_dict().items() if value and name not in ("frames_ok", "other_frames")
+            f"{name} {value}" for name, value in lexer.as_dict().items() if value and name not in NOT_DROPS
         )
         dropped_out = (
             writer.frames_dropped_full + writer.frames_dropped_timeout + writer.frames_dropped_error
