@@ -131,6 +131,8 @@ def test_calibration_live_and_watch_blocks_run_as_written(scratch):
     for name in ("heat.csv", "cool.csv", "test.csv", "model.json", "compensated.csv", "report/report.md"):
         assert (scratch / name).stat().st_size > 0, name
     assert "Table 4: test.csv" in result.stdout
+    fit_line = next(line for line in result.stderr.splitlines() if line.startswith("pso-svr: "))
+    assert "epsilon_dph=" in fit_line and "epsilon=" not in fit_line, fit_line  # one epsilon, in deg/h
 
     result = run_block(live, scratch)
     assert result.returncode == 0, result.stderr[-3000:]
@@ -144,3 +146,46 @@ def test_calibration_live_and_watch_blocks_run_as_written(scratch):
     assert sum("  running  " in frame for frame in frames) >= 2, result.stdout
     assert f"fogd {__version__} pid " in result.stdout and "running, up" in result.stdout  # fogd --status
     assert "\x1b" not in result.stdout  # a pipe gets plain frames
+
+
+def fogd_option_table() -> dict[str, str]:
+    """The README's fogd option table: option name -> default cell."""
+    text = (ROOT / "README.md").read_text()
+    section = text[text.index("### `fogd` — the real-time daemon"):text.index("### `fogd-emu`")]
+    return {match.group(1): match.group(2).strip() for match in re.finditer(r"^\| `--([\w-]+)[^`]*` \| ([^|]*) \|", section, flags=re.M)}
+
+
+def test_fogd_defaults_agree_in_the_readme_help_and_config():
+    from fogd.cli.daemon import parser
+    from fogd.config import OPTIONS
+
+    table = fogd_option_table()
+    helps = {action.dest: action.help for action in parser()._actions}
+    for option in OPTIONS:
+        cell = table.get(option.key.replace("_", "-"))
+        assert cell is not None, f"--{option.key.replace('_', '-')} is not in the README's option table"
+        help_text = helps[option.key] % {"default": option.default}
+        if option.default is None:
+            assert cell in ("(required)", "none", "off"), (option.key, cell)
+            assert "default" not in help_text or re.search(r"default: (off|run until)", help_text) or "required" in help_text
+        elif option.key == "out":
+            assert cell.startswith("`-` on a terminal") and "'-' when stdout is a terminal" in help_text
+        else:
+            shown = cell.strip("`")
+            assert shown == str(option.default) or float(shown) == option.default, (option.key, cell)
+            assert f"default: {option.default}" in help_text, (option.key, help_text)
+
+
+def exit_codes(sentence: str) -> set[int]:
+    return {int(code) for code in re.findall(r"(?<![\w.-])(\d{1,3})(?= )", sentence)}
+
+
+def test_fogd_exit_statuses_agree_in_the_readme_and_help():
+    readme = " ".join((ROOT / "README.md").read_text().split())
+    sentence = readme[readme.index("Exit status: 0 after SIGTERM/SIGINT"):]
+    sentence = sentence[: sentence.index("Every error is one line")]
+    helps = run_block(".venv/bin/fogd --help", ROOT).stdout
+    epilog = " ".join(helps[helps.index("Exit status:"):].split())
+    assert exit_codes(sentence) == exit_codes(epilog) == {0, 2, 3, 65, 74, 78}, (sentence, epilog)
+    general = readme[readme.index("| exit | meaning | e.g. |"):readme.index("### `fogd-sim`")]
+    assert {int(code) for code in re.findall(r"\| (\d+) \|", general)} == {0, 2, 3, 65, 66, 74, 78, 130}
