@@ -169,11 +169,14 @@ def temperature_columns(specs: tuple[InputSpec, ...]) -> tuple[int, ...]:
 
 
 STATIC_MAX_TAU_S = 1000.0  # temperatures that follow the coil: the sensor's and lags up to this time constant
-# fogd-train's default: a bank of lags from half a minute to the housing's hour. A bank reaching 10,000 s was
-# as good with three calibration runs and far worse with two: the slowest lags hardly move within a run and,
-# with one offset per run, are nearly free (an exploratory least-squares check, not in tools/: held-out drift
-# 1.6-3.9x the noise floor against 1.2-1.8x with paper-train and cooling as the only calibration runs).
-DEFAULT_INPUTS_TEXT = "lags@30..3000/5"
+# fogd-train's default: the sensor's temperature and a bank of lags from half a minute to the housing's hour.
+# A bank reaching 10,000 s was as good with three calibration runs and far worse with two: the slowest lags
+# hardly move within a run and, with one offset per run, are nearly free (an exploratory least-squares check,
+# not in tools/: held-out drift 1.6-3.9x the noise floor against 1.2-1.8x with paper-train and cooling as the
+# only calibration runs). The sensor's own temperature carries what no lag has: the housing's latest move,
+# which the coil's rate and gradient follow at once. Without it, a ramp four times faster than calibration
+# left 3.1x the floor on the diffusive coil, with it 1.5x (fogd-train's pipeline, 20 x 20 swarm, coil trend).
+DEFAULT_INPUTS_TEXT = "temp,lags@30..3000/5"
 
 
 def static_columns(specs: tuple[InputSpec, ...], max_tau_s: float = STATIC_MAX_TAU_S) -> tuple[int, ...]:

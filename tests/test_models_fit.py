@@ -39,14 +39,17 @@ def test_frozen_params_reproduce_the_estimator(method: str) -> None:
     assert fitted.cv_rmse_dph is not None and np.isfinite(fitted.cv_rmse_dph)
 
 
-@pytest.mark.parametrize("trend", ["poly", "linear"])
+@pytest.mark.parametrize("trend", ["coil", "poly", "linear"])
 def test_frozen_svr_with_its_trend_reproduces_the_estimator(trend: str) -> None:
     """The model file's trend (monomials and coefficients, offsets per run folded into the intercept) gives the
     scikit-learn estimator's predictions."""
     x, y, groups = chamber_rows(80, seed=12, runs=3)
-    options = FitOptions(particles=6, iterations=4, trend=trend, static_columns=(0,), progress=False)
+    x = np.c_[x, x[:, 0] + np.random.default_rng(4).normal(0.0, 3.0, len(x))]  # a second temperature input
+    options = FitOptions(particles=6, iterations=4, trend=trend, static_columns=(0,), temperature_columns=(0, 2),
+                         progress=False)  # fmt: skip
     fitted = fit("pso-svr", x, y, groups, options)
-    assert ("trend_powers" in fitted.params) == (trend == "poly")
+    assert ("trend_powers" in fitted.params) == (trend in ("coil", "poly"))
+    assert fitted.hyperparameters["trend"] == trend
     xs = (x - fitted.x_mean) / fitted.x_scale
     np.testing.assert_allclose(build_evaluator("pso-svr", fitted.params)(xs), fitted.estimator.predict(xs), rtol=1e-9, atol=1e-9)
 

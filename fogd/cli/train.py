@@ -69,10 +69,11 @@ def parser() -> ArgumentParser:
         "train = the paper's RMSE on the training data",
     )  # fmt: skip
     p.add_argument(
-        "--trend", choices=TRENDS, default="poly",
-        help="pso-svr: fit the SVR on top of a least-squares trend with one offset per run: 'poly' (every input "
-        "linear plus powers up to 3 of the temperatures that follow the coil: the static nonlinearity), "
-        "'linear' (IEEE 952), or 'none' for the paper's plain SVR",
+        "--trend", choices=TRENDS, default="coil",
+        help="pso-svr: fit the SVR on top of a least-squares trend with one offset per run: 'coil' (every input "
+        "linear plus powers up to 3 of one coil temperature, a fitted weighted mean of the temperature inputs: "
+        "the static nonlinearity), 'poly' (powers up to 3 of each temperature that follows the coil), "
+        "'linear' (IEEE 952), or 'none' for the paper's plain SVR (default coil)",
     )  # fmt: skip
     p.add_argument("--particles", type=positive_int, default=None,
                    help=f"PSO population (default 60 as the paper; {AUTO_PARTICLES} inside --method auto)")

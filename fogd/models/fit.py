@@ -15,6 +15,7 @@ from sklearn.exceptions import ConvergenceWarning
 
 from fogd.errors import InputError, UsageError
 from fogd.inputs import clamp_rows
+from fogd.models.coil import CoilTerms, fit_mix
 from fogd.models.folds import folds, held_out_rmse
 from fogd.models.least_squares import POLY_TERMS, fit_linear, fit_polynomial, polynomial_terms, temperature_powers
 from fogd.models.rbf import ROWS_PER_CENTRE, fit_rbf_network
@@ -35,13 +36,13 @@ class FitOptions:
     temperature_columns: tuple[int, ...] = (0,)  # the inputs that are temperatures (for poly_terms "temp")
     static_columns: tuple[int, ...] = (0,)  # the temperatures that follow the coil (powers in the "poly" trend)
     shifted_columns: tuple[int, ...] = ()  # temperatures the domain clamp moves together (fogd.inputs.clamp_rows)
-    trend_degree: int = 3  # the "poly" trend's highest power
+    trend_degree: int = 3  # the "coil" and "poly" trends' highest power
     particles: int = 60
     iterations: int = 100
     c1: float = 2.0
     c2: float = 2.0
     fitness: str = "cv"  # "train": the paper's RMSE on the training rows; "cv": RMSE on held-out folds
-    trend: str = "poly"  # pso-svr: the SVR on a "poly" or "linear" least-squares trend, or "none" (the paper's)
+    trend: str = "coil"  # pso-svr: the SVR on a "coil", "poly" or "linear" least-squares trend, or "none" (the paper's)
     folds: int = 5  # contiguous time folds when there is only one run
     n_jobs: int = 1
     seed: int = 0
@@ -114,7 +115,7 @@ def fit(method: str, X: np.ndarray, y: np.ndarray, groups: np.ndarray, options: 
         else:
             result = fit_pso_svr(
                 xs, ys, splits, y_scale,
-                fitness=options.fitness, trend=options.trend != "none", trend_powers=trend_powers(X.shape[1], options),
+                fitness=options.fitness, trend=options.trend != "none", trend_powers=trend_terms(xs, ys, groups, options),
                 groups=groups, clamp=clamp, particles=options.particles, iterations=options.iterations,
                 c1=options.c1, c2=options.c2, seed=options.seed, n_jobs=options.n_jobs, progress=options.progress,
             )
@@ -140,11 +141,15 @@ def fit(method: str, X: np.ndarray, y: np.ndarray, groups: np.ndarray, options: 
     )
 
 
-def trend_powers(inputs: int, options: FitOptions) -> np.ndarray | None:
-    """The "poly" trend's monomials: every input linear, the static columns up to `trend_degree` (None: linear)."""
-    if options.trend != "poly":
-        return None
-    return temperature_powers(inputs, options.trend_degree, options.static_columns)
+def trend_terms(xs: np.ndarray, ys: np.ndarray, groups: np.ndarray, options: FitOptions) -> np.ndarray | CoilTerms | None:
+    """The pso-svr trend's terms of the scaled rows: the "coil" trend's mix (fitted once, here, then fixed for
+    every fold and particle), the "poly" trend's monomials (every input linear, the static columns up to
+    `trend_degree`), or None (linear)."""
+    if options.trend == "coil":
+        return fit_mix(xs, ys, groups, options.temperature_columns, options.trend_degree)
+    if options.trend == "poly":
+        return temperature_powers(xs.shape[1], options.trend_degree, options.static_columns)
+    return None
 
 
 def _check_rows(method: str, train_rows: int, inputs: int, options: FitOptions) -> None:

@@ -20,6 +20,7 @@ from sklearn.base import BaseEstimator, RegressorMixin
 from sklearn.preprocessing import PolynomialFeatures
 
 from fogd.frozen import monomials
+from fogd.models.coil import CoilTerms
 from fogd.models.method import MethodFit
 
 
@@ -45,17 +46,22 @@ def temperature_powers(inputs: int, degree: int, temperature_columns: tuple[int,
 
 
 class RunOffsetLeastSquares(RegressorMixin, BaseEstimator):
-    """Least squares on the monomials `powers` of the scaled inputs (the inputs themselves when None), with one
+    """Least squares on the monomials `powers` of the scaled inputs (the inputs themselves when None; the
+    coil-temperature terms when CoilTerms, fogd.models.coil), with one
     offset per calibration run: a gyro's turn-on bias differs from run to run and is not thermal, so it must
     not leak into the temperature coefficients. Fitting on rows centred within each run is the same as fitting
     an offset per run (Frisch-Waugh-Lovell); the model's intercept is then the runs' mean offset, weighted by
     rows, and predictions need no run."""
 
-    def __init__(self, powers: np.ndarray | None = None) -> None:
+    def __init__(self, powers: np.ndarray | CoilTerms | None = None) -> None:
         self.powers = powers
 
     def features(self, xs: np.ndarray) -> np.ndarray:
-        return xs if self.powers is None else monomials(xs, np.asarray(self.powers))
+        if self.powers is None:
+            return xs
+        if isinstance(self.powers, CoilTerms):
+            return self.powers(xs)
+        return monomials(xs, np.asarray(self.powers))
 
     def fit(self, xs: np.ndarray, ys: np.ndarray, groups: np.ndarray | None = None) -> "RunOffsetLeastSquares":
         features = self.features(xs)

@@ -10,7 +10,8 @@ Fitness "train" is the paper's step 2: RMSE on the training rows, which rewards 
 fitness "cv" is the RMSE on held-out folds. Both are reported in deg/h.
 
 The SVR can sit on a least-squares trend, refitted on every training fold, and then models only what the
-trend leaves: `trend="linear"` (IEEE 952's linear model in the inputs), `trend="poly"` (fogd's default: the
+trend leaves: `trend="coil"` (fogd's default, fogd.models.coil: the inputs linear plus the static curve at
+a fitted coil temperature), `trend="linear"` (IEEE 952's linear model in the inputs), `trend="poly"` (the
 inputs linear plus powers 2..3 of the temperature inputs that follow the coil, `static_columns`, the static
 nonlinearity; over a lag bank this is a grey-box thermal model) or `"none"` (the paper's plain SVR). An RBF
 kernel decays to its intercept away from the data; with the trend underneath, the model degrades towards
@@ -30,6 +31,7 @@ from sklearn.exceptions import ConvergenceWarning
 from sklearn.svm import SVR
 
 from fogd.errors import InputError
+from fogd.models.coil import CoilTerms
 from fogd.models.folds import Clamp, Split, drift_rmse, run_levels
 from fogd.models.least_squares import RunOffsetLeastSquares
 from fogd.models.method import MethodFit
@@ -51,16 +53,17 @@ FITNESS_MAX_ITER = 10_000
 _CACHE_MB = 64  # the whole float32 kernel matrix of 4000 rows; libsvm allocates it only as needed
 
 
-TRENDS = ("poly", "linear", "none")
+TRENDS = ("coil", "poly", "linear", "none")
 
 
 class TrendSvr(RegressorMixin, BaseEstimator):
     """An RBF SVR (paper eq. 12-13, k(x, x_i) = exp(-||x - x_i||^2 / (2 sigma^2))) on top of a least-squares
     trend with one offset per run: predict(x) = trend(x) + svr(x). `trend_powers` are the trend's monomials
-    (None: the inputs themselves, a linear trend); `trend=False` is the paper's plain SVR."""
+    (None: the inputs themselves, a linear trend; CoilTerms: fogd.models.coil); `trend=False` is the paper's
+    plain SVR."""
 
     def __init__(self, C: float = 1.0, epsilon: float = 0.1, sigma: float = 1.0, trend: bool = True,
-                 max_iter: int = -1, trend_powers: np.ndarray | None = None):  # fmt: skip
+                 max_iter: int = -1, trend_powers: np.ndarray | CoilTerms | None = None):  # fmt: skip
         self.C = C
         self.epsilon = epsilon
         self.sigma = sigma
@@ -91,7 +94,7 @@ class TrendSvr(RegressorMixin, BaseEstimator):
 
 def svr_fitness(
     log10_position: np.ndarray, xs: np.ndarray, ys: np.ndarray, splits: list[Split], y_scale: float, trend: bool,
-    groups: np.ndarray | None = None, trend_powers: np.ndarray | None = None, clamp: Clamp | None = None,
+    groups: np.ndarray | None = None, trend_powers: np.ndarray | CoilTerms | None = None, clamp: Clamp | None = None,
 ) -> float:
     """Drift RMSE in deg/h (about each run's mean) of the model at `log10_position` on the test rows of `splits`;
     +inf if SMO did not converge."""
@@ -122,7 +125,7 @@ def fit_pso_svr(
     *,
     fitness: str,
     trend: bool,
-    trend_powers: np.ndarray | None = None,
+    trend_powers: np.ndarray | CoilTerms | None = None,
     groups: np.ndarray | None = None,
     clamp: Clamp | None = None,
     particles: int,
@@ -134,6 +137,7 @@ def fit_pso_svr(
     progress: bool,
 ) -> MethodFit:
     """Search C, epsilon, sigma with the swarm, then fit the SVR on every row with the best of them."""
+    coil = trend_powers if isinstance(trend_powers, CoilTerms) else None
     rows = np.arange(len(ys))
     fitness_splits = [(rows, rows)] if fitness == "train" else splits
     lower = LOG10_LOWER.copy()
@@ -158,6 +162,8 @@ def fit_pso_svr(
     c, epsilon, sigma = (float(value) for value in 10.0 ** result.best_position)
     model = TrendSvr(c, epsilon, sigma, trend, trend_powers=trend_powers).fit(xs, ys, groups)
     trend_coef = model.trend_.coef_ if trend else np.zeros(xs.shape[1] if trend_powers is None else len(trend_powers))
+    if isinstance(trend_powers, CoilTerms):  # frozen as the polynomial it is: the model file does not change
+        trend_powers, trend_coef = trend_powers.monomial_form(trend_coef)
     params = {
         "support_vectors": model.svr_.support_vectors_.tolist(),
         "dual_coef": model.svr_.dual_coef_[0].tolist(),
@@ -175,4 +181,7 @@ def fit_pso_svr(
         "gamma": float(model.svr_.gamma),
         "trend": "none" if not trend else "linear" if trend_powers is None else "poly",
     }
+    if coil is not None:
+        hyperparameters["trend"] = "coil"
+        hyperparameters["coil_mix"] = coil.mix.tolist()
     return MethodFit(model, params, hyperparameters, result.history)

@@ -1,0 +1,49 @@
+"""The coil-temperature trend: its polynomial form is the same function, and variable projection finds the
+mix of temperatures that carries the static curve, whatever each run's offset."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from fogd.frozen import monomials
+from fogd.models.coil import MIX_FLOOR, CoilTerms, fit_mix
+
+unit = st.floats(0.0, 1.0, allow_nan=False)
+
+
+@settings(max_examples=60, deadline=None)
+@given(weights=st.lists(unit, min_size=3, max_size=3).filter(lambda w: sum(w) > 0.1),
+       coef=st.lists(st.floats(-5.0, 5.0), min_size=6, max_size=6), degree=st.integers(2, 3),
+       seed=st.integers(0, 2**16))  # fmt: skip
+def test_monomial_form_is_the_same_function(weights: list[float], coef: list[float], degree: int, seed: int) -> None:
+    mix = np.array(weights + [0.0]) / sum(weights)  # the fourth input (a rate) is never in the mix
+    terms = CoilTerms(mix, degree)
+    coef_ = np.array(coef[: terms.columns])  # four inputs, then q**2 .. q**degree
+    xs = np.random.default_rng(seed).normal(0.0, 2.0, (50, 4))
+    powers, poly_coef = terms.monomial_form(coef_)
+    assert powers.shape[1] == 4 and np.all(powers[:, 3][4:] == 0)
+    np.testing.assert_allclose(monomials(xs, powers) @ poly_coef, terms(xs) @ coef_, rtol=1e-9, atol=1e-9)
+
+
+def test_fit_mix_recovers_the_coil_temperature_despite_run_offsets() -> None:
+    rng = np.random.default_rng(7)
+    n, runs = 600, 3
+    groups = np.repeat(np.arange(runs), n // runs)
+    base = np.cumsum(rng.normal(0.0, 0.2, n))
+    xs = np.c_[base + rng.normal(0.0, 0.3, n), base + rng.normal(0.0, 0.3, n), base + rng.normal(0.0, 0.3, n)]
+    xs = (xs - xs.mean(axis=0)) / xs.std(axis=0)
+    coil = 0.7 * xs[:, 1] + 0.3 * xs[:, 2]
+    offsets = np.array([5.0, -3.0, 40.0])[groups]  # turn-on bias: nothing to do with temperature
+    ys = 0.2 * xs[:, 0] - 0.1 * coil**2 + 0.05 * coil**3 + offsets + rng.normal(0.0, 1e-3, n)
+    terms = fit_mix(xs, ys, groups, (0, 1, 2), degree=3)
+    assert np.isclose(terms.mix.sum(), 1.0)
+    assert np.all((terms.mix == 0.0) | (terms.mix >= MIX_FLOOR))
+    np.testing.assert_allclose(terms.mix, [0.0, 0.7, 0.3], atol=0.02)
+
+
+def test_a_single_temperature_is_its_own_coil_temperature() -> None:
+    xs = np.random.default_rng(1).normal(size=(40, 2))
+    terms = fit_mix(xs, xs[:, 0] ** 3, None, (0,), degree=3)
+    np.testing.assert_array_equal(terms.mix, [1.0, 0.0])
