@@ -35,15 +35,15 @@ HELD_OUT = ("paper-test", "cool-40-to-0", "fast-ramp", "soak-after-ramp", "fast-
 SENSORS = {"fine (0.0625 C, 4 Hz)": (0.0625, 4.0), "whole degrees (1 C, 1 Hz, a KVH)": (1.0, 1.0)}
 THERMALS = ("lumped", "diffusive")
 LINEAR = "linear (IEEE 952: temp, rate@50)"
-DEFAULT = f"**fogd default: pso-svr, poly trend, {DEFAULT_INPUTS_TEXT}**"
+DEFAULT = f"**fogd default: pso-svr, coil trend, {DEFAULT_INPUTS_TEXT}**"
 AUTO = "fogd-train --method auto"
 SCHEMES = (  # (label, method, inputs, fitness, trend, domain guard)
     (LINEAR, "linear", None, "cv", "linear", False),
     ("paper's recipe: pso-svr --fitness train --trend none (temp, rate@50)", "pso-svr", None, "train", "none", False),
-    ("pso-svr --trend linear (temp, rate@50), the previous default", "pso-svr", None, "cv", "linear", False),
-    (DEFAULT, "pso-svr", DEFAULT_INPUTS_TEXT, "cv", "poly", False),
-    ("default with the domain guard", "pso-svr", DEFAULT_INPUTS_TEXT, "cv", "poly", True),
-    (AUTO, "auto", None, "cv", "poly", False),
+    ("the previous default: pso-svr --trend poly, lags@30..3000/5", "pso-svr", "lags@30..3000/5", "cv", "poly", False),
+    (DEFAULT, "pso-svr", DEFAULT_INPUTS_TEXT, "cv", "coil", False),
+    ("default with the domain guard", "pso-svr", DEFAULT_INPUTS_TEXT, "cv", "coil", True),
+    (AUTO, "auto", None, "cv", "coil", False),
 )
 
 
