@@ -2,10 +2,11 @@
 daemon's counters in the text exposition format. Off unless `metrics_port` is set; binds 127.0.0.1 unless
 `metrics_address` says otherwise. It only reads a snapshot, so a slow scraper never touches the data path.
 
-Network clients must never cost gyro data: at most MAX_CONNECTIONS are served at once (one thread and one
-descriptor each) and a connection that sends nothing for CONNECTION_TIMEOUT_S is closed; connections beyond
-the limit are accepted and closed at once, so idle clients can exhaust neither threads nor the descriptors the
-serial port, the output and the stats file need.
+Network clients must never cost gyro data: at most MAX_CONNECTIONS are open at once (one thread and one
+descriptor each) and a connection that sends nothing for CONNECTION_TIMEOUT_S is closed. A new connection
+beyond the limit closes the oldest open one (a scraper asks at once and is answered in milliseconds, so the
+oldest is an idle one), so idle clients can exhaust neither threads nor the descriptors the serial port, the
+output and the stats file need, and cannot lock a scraper out.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import logging
 import math
 import socket
 import threading
+import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any, Callable
 
@@ -70,29 +72,50 @@ def render(snapshot: dict[str, Any]) -> str:
 class _Server(ThreadingHTTPServer):
     daemon_threads = True
     block_on_close = False
-    request_queue_size = MAX_CONNECTIONS
+    request_queue_size = 128  # waiting in the kernel costs no descriptor
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         self._slots = threading.BoundedSemaphore(MAX_CONNECTIONS)
-        self.refused = 0
+        self._lock = threading.Lock()
+        self._open: dict[Any, float] = {}  # connection -> when it was accepted
+        self.evicted = 0
         super().__init__(*args, **kwargs)
 
     def process_request(self, request: Any, client_address: Any) -> None:
         if not self._slots.acquire(blocking=False):
-            self.refused += 1
-            self.shutdown_request(request)  # over the limit: closed at once, no thread, no descriptor kept
-            return
+            self._evict_oldest()
+            if not self._slots.acquire(timeout=1.0):
+                self.shutdown_request(request)  # still full: closed at once, no thread, no descriptor kept
+                return
+        with self._lock:
+            self._open[request] = time.monotonic()
         try:
             super().process_request(request, client_address)
         except BaseException:
-            self._slots.release()
+            self._release(request)
             raise
 
     def process_request_thread(self, request: Any, client_address: Any) -> None:
         try:
             super().process_request_thread(request, client_address)
         finally:
-            self._slots.release()
+            self._release(request)
+
+    def _release(self, request: Any) -> None:
+        with self._lock:
+            self._open.pop(request, None)
+        self._slots.release()
+
+    def _evict_oldest(self) -> None:
+        with self._lock:
+            if not self._open:
+                return
+            oldest = min(self._open, key=self._open.__getitem__)
+        self.evicted += 1
+        try:
+            oldest.shutdown(socket.SHUT_RDWR)  # its handler's read returns at once and the thread ends
+        except OSError:
+            pass
 
 
 def serve(snapshot: Callable[[], dict[str, Any]], address: str, port: int) -> ThreadingHTTPServer:
