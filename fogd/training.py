@@ -70,6 +70,7 @@ def train(runs: list[Run], config: TrainConfig, prepared: tuple[TrainingSet, flo
     error = data.rate_dph - reference
     options = options_for_inputs(config.fit, config.inputs)
     fitted = fit(config.method, data.x, error, data.groups, options)
+    _name_coil_temperature(fitted, config.inputs)
     created = dt.datetime.now(dt.timezone.utc).replace(microsecond=0).isoformat()
     metrics = {
         "train_before": ErrorStats.about_run_means(error, data.groups).to_dict(),
@@ -105,6 +106,18 @@ def train(runs: list[Run], config: TrainConfig, prepared: tuple[TrainingSet, flo
     fit_dph, _ = model.predict(data.x)
     metrics["train_after"] = ErrorStats.about_run_means(error - fit_dph, data.groups).to_dict()
     return Trained(document, model, fitted, data, reference, error, fit_dph)
+
+
+def _name_coil_temperature(fitted: Fitted, specs: tuple[InputSpec, ...]) -> None:
+    """Replace the coil trend's mix (weights of the scaled inputs) by what it means in degrees C, e.g.
+    '0.86 lag@300 + 0.14 lag@950', for the fit line, the report and the model file's training section."""
+    mix = fitted.hyperparameters.pop("coil_mix", None)
+    if mix is None:
+        return
+    raw = np.asarray(mix) / fitted.x_scale
+    raw = raw / raw.sum()
+    fitted.hyperparameters["coil_temperature"] = " + ".join(
+        f"{weight:.2f} {spec.short}" for weight, spec in zip(raw, specs) if weight > 0)
 
 
 def options_for_inputs(options: FitOptions, specs: tuple[InputSpec, ...]) -> FitOptions:
