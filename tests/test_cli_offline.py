@@ -115,7 +115,7 @@ def test_train_option_errors(runs, args, status, words):
 
 def test_train_data_errors(runs, tmp_path):
     missing = tmp_path / "nope.csv"
-    assert_one_line_error(command("fogd-train", missing, "-o", tmp_path / "m.json"), 65, "nope.csv")
+    assert_one_line_error(command("fogd-train", missing, "-o", tmp_path / "m.json"), 66, "nope.csv")  # EX_NOINPUT
     empty = tmp_path / "empty.csv"
     empty.write_text("")
     assert_one_line_error(command("fogd-train", empty, "-o", tmp_path / "m.json"), 65, "empty.csv", "empty")
