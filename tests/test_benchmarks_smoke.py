@@ -52,3 +52,20 @@ def test_paper_tables_reproduce_the_papers_table_3_headline():
     assert set(removed) == {"5th-order LS", "RBF-NN (L1)", "PSO-SVR"}
     assert removed["PSO-SVR"] >= 95.0 and removed["PSO-SVR"] == max(removed.values())
     assert "Table 4" in done.stdout and "Best possible" in done.stdout
+
+
+def _bounds(*args: str) -> dict[str, float]:
+    done = subprocess.run([sys.executable, str(TOOLS / "quantisation_bound.py"), "--rate-hz", "2", *args],
+                          capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    return {line.split()[0]: float(line.split("worst ")[1].rstrip(")")) for line in done.stdout.splitlines() if "(worst" in line}
+
+
+def test_quantisation_bound_is_blind_only_with_a_coarse_sensor():
+    """A fine sensor changes its reading within seconds of a ramp's start, so its bound is the floor itself; a
+    whole-degree one stays blind for minutes while the error moves, so its bound is well above it."""
+    fine = _bounds("--resolution-c", "0.0625", "--sensor-hz", "4")
+    whole = _bounds()
+    assert set(fine) == set(whole) == {"lumped", "diffusive"}
+    assert all(value < 1.02 for value in fine.values())
+    assert all(value > 1.2 for value in whole.values())
