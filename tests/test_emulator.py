@@ -365,7 +365,7 @@ def test_pyserial_reader_with_wait_reader_gets_every_frame_from_the_first(run_cs
         (["--csv", "/nonexistent/run.csv"], "/nonexistent/run.csv"),
         (["--profile", "no-such-profile"], "unknown profile 'no-such-profile'"),
         (["--profile", "/nonexistent/p.yaml"], "cannot read profile"),
-        (["--profile", "cycle", "--garbage", "1.5"], "outside 0..1"),
+        (["--profile", "cycle", "--garbage", "1.5"], "at least 0 and at most 1"),
         (["--profile", "cycle", "--protocol", "ascii", "--clear-status", "0.1"], "clear-status"),
         (["--profile", "cycle", "--rate-hz", "9000"], "rate_hz must be within 1..5000 Hz"),
         ([], "required"),

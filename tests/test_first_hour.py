@@ -182,7 +182,7 @@ def test_fogd_top_in_tmux_shows_the_running_daemon(tmp_path):
                 break
         lines = screen.splitlines()
         assert lines[0].startswith(f"fogd-top  fogd {__version__}  pid {daemon.pid}  running"), screen
-        assert any(line.startswith("frames   in imu ") for line in lines), screen
+        assert any(line.startswith("frames   in rate ") for line in lines), screen  # the demo: fogd frames
         assert any(line.startswith("latency  last ") and " ms" in line for line in lines), screen
         spark = next(line for line in lines if line.startswith("T        "))
         assert re.search(r"[▁▂▃▄▅▆▇█]{5,}", spark) and re.search(r"\(-?[\d.]+ \.\. -?[\d.]+ C\)", spark), screen
