@@ -32,10 +32,10 @@ SKIPPED = {
 # a command in a run block -> options appended to it: shorter runs, nothing else
 APPENDED = {
     ".venv/bin/fogd-sim --profile": "--rate-hz 10",
-    ".venv/bin/fogd-train heat.csv cool.csv -o model.json": "--particles 6 --iterations 3 -q",
-    ".venv/bin/fogd --port /tmp/fog0": "--duration-s 4",
+    ".venv/bin/fogd-train heat.csv cool.csv -o model.json": "--particles 4 --iterations 2 -q",
+    ".venv/bin/fogd --port /tmp/fog0": "--duration-s 3",
     ".venv/bin/fogd --demo --stats-file": "--duration-s 40",  # outlives fogd-top and --status; then kill %1
-    ".venv/bin/fogd-top --stats-file": "--count 10 --ascii",
+    ".venv/bin/fogd-top --stats-file": "--count 6 --ascii",
 }
 SEPARATORS = re.compile(r"(\s+#.*$|\s*&&\s*|\s*;\s*|\s+&(?=\s|$)\s*|\s*\|\s*)")
 TOOLS = re.compile(r"^(fogd[\w-]*|python3?|pip3?|pytest)(\s|$)")
