@@ -184,7 +184,7 @@ def test_fogd_exit_statuses_agree_in_the_readme_and_help():
     readme = " ".join((ROOT / "README.md").read_text().split())
     sentence = readme[readme.index("Exit status: 0 after SIGTERM/SIGINT"):]
     sentence = sentence[: sentence.index("Every error is one line")]
-    helps = run_block(".venv/bin/fogd --help", ROOT).stdout
+    helps = subprocess.run([str(VENV / "bin" / "fogd"), "--help"], capture_output=True, text=True, timeout=30).stdout
     epilog = " ".join(helps[helps.index("Exit status:"):].split())
     assert exit_codes(sentence) == exit_codes(epilog) == {0, 2, 3, 65, 74, 78}, (sentence, epilog)
     general = readme[readme.index("| exit | meaning | e.g. |"):readme.index("### `fogd-sim`")]
