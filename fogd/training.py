@@ -32,7 +32,7 @@ class TrainConfig:
     reference: str | float = "mean"  # 'mean' of all training blocks, or a rate in deg/h
     fit: FitOptions = field(default_factory=FitOptions)
     name: str | None = None
-    domain_guard: bool = True  # store the joint-space guard and its linear fallback (fogd.domain)
+    domain_guard: bool = False  # store the joint-space guard and its linear fallback (fogd.domain), as --domain-guard
 
 
 @dataclass
