@@ -12,7 +12,7 @@ Each evaluator's parameters are exactly what the model file stores under `params
 `FrozenModel.predict_one` is the per-sample form for one input row of Python floats: the same clamp, scaling
 and sums in plain Python (each evaluator's `point`), because numpy's per-call overhead dominates one row. It
 agrees with `predict` to rounding (sums in another order, `math.exp` for numpy's exp), far inside 1e-12
-relative; large kernel models go through numpy instead, one row at a time (`POINT_NUMPY_TERMS`).
+relative; large kernel models go through numpy instead, one row at a time (`POINT_NUMPY_WORK`).
 """
 
 from __future__ import annotations
@@ -26,8 +26,9 @@ import numpy as np
 from fogd.inputs import InputSpec, clamp_rows, shifted_columns
 
 _CHUNK_ROWS = 4096  # kernel evaluations in blocks, so memory stays bounded on million-row replays
-# Above this many kernel terms one row is cheaper through numpy than a Python loop (tools/bench_point.py)
-POINT_NUMPY_TERMS = 24
+# Above this many kernel terms x inputs one row is cheaper through numpy than a Python loop (tools/bench_point.py:
+# the loop's cost grows with both, numpy's hardly)
+POINT_NUMPY_WORK = 48
 
 
 def _floats(values: np.ndarray) -> tuple:
@@ -84,39 +85,38 @@ class Polynomial:
         return _row_dot(monomials(xs, self.powers), self.coef) + self.intercept
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "_point_terms", tuple(zip(self.powers.tolist(), _floats(self.coef))))
+        # Only the factors with a nonzero power, in column order: x**0 is 1.0 and x**1 is x exactly, so the
+        # product is bit for bit the one `monomials` forms, with a fraction of the operations.
+        factors = tuple(tuple((j, p) for j, p in enumerate(row) if p != 0) for row in self.powers.tolist())
+        object.__setattr__(self, "_point_terms", tuple(zip(factors, _floats(self.coef))))
 
     def point(self, xs: Sequence[float]) -> float:
         total = 0.0
-        for powers, coef in self._point_terms:
+        for factors, coef in self._point_terms:
             term = 1.0
-            for x, power in zip(xs, powers):
-                term *= x**power
+            for column, power in factors:
+                term *= xs[column] if power == 1 else xs[column] ** power
             total += term * coef
         return total + self.intercept
 
 
 class _GaussianPoint:
-    """sum_k weights_k exp(-gamma ||x - centre_k||^2) for one row: a Python loop for a few centres, else numpy
-    a column at a time (the same operations as the array path, without its (rows, centres, inputs) temporaries)."""
+    """sum_k weights_k exp(-gamma ||x - centre_k||^2) for one row: a Python loop for a few centres in few
+    dimensions, else numpy on the whole (centres, inputs) difference at once (the same per-element operations
+    as the array path; summed along each row in column order, as the array path sums, for fewer than 8 inputs)."""
 
     def __init__(self, centres: np.ndarray, weights: np.ndarray, gamma: float) -> None:
         self.neg_gamma = -gamma
-        self.use_numpy = len(centres) > POINT_NUMPY_TERMS
-        self.columns = tuple(np.ascontiguousarray(centres[:, j]) for j in range(centres.shape[1]))
+        self.use_numpy = len(centres) * max(1, centres.shape[1]) > POINT_NUMPY_WORK
+        self.centres = np.ascontiguousarray(centres, dtype=np.float64)
         self.weights = np.ascontiguousarray(weights)
         self.terms = tuple(zip(centres.tolist(), _floats(weights)))
 
     def __call__(self, xs: Sequence[float]) -> float:
         if self.use_numpy:
-            squared = None
-            for column, x in zip(self.columns, xs):
-                difference = column - x
-                difference *= difference
-                if squared is None:
-                    squared = difference
-                else:
-                    squared += difference
+            difference = self.centres - np.asarray(xs, dtype=np.float64)
+            np.multiply(difference, difference, out=difference)
+            squared = difference.sum(axis=1)
             squared *= self.neg_gamma
             return float(np.dot(np.exp(squared, out=squared), self.weights))
         neg_gamma, exp = self.neg_gamma, math.exp
