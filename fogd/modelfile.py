@@ -178,6 +178,14 @@ _CHECK_CORNERS = 256
 _CHECK_RANDOM = 64
 
 
+class ModelOutputError(ModelFileError):
+    """A model whose compensation is not finite or beyond MAX_COMP_DPH somewhere in its own domain."""
+
+    def __init__(self, message: str, value_dph: float) -> None:
+        super().__init__(message)
+        self.value_dph = value_dph
+
+
 def check_output(model: FrozenModel, source: str = "model") -> None:
     """The model's compensation must be finite and below MAX_COMP_DPH over its whole (clamped) domain: checked
     at the domain's corners, centre and seeded random points, for the model and its guard's fallback."""
@@ -202,9 +210,10 @@ def check_output(model: FrozenModel, source: str = "model") -> None:
                 raise ModelFileError(f"{source}: {each.name or 'the model'} cannot be evaluated on its domain ({error})") from None
         bad = ~(np.abs(y) <= MAX_COMP_DPH)
         if bad.any():
-            raise ModelFileError(
+            raise ModelOutputError(
                 f"{source}: {printable(each.name or 'the model')[:60]} gives {y[bad][0]!r} deg/h inside its own domain "
-                f"(the limit is {MAX_COMP_DPH:g}); a corrupt or hostile model"
+                f"(the limit is {MAX_COMP_DPH:g}); a corrupt or hostile model",
+                float(y[bad][0]),
             )
 
 

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from fogd import domain, modelfile
+from fogd.errors import InputError
 from fogd.features import TrainingSet, block_samples, training_set
 from fogd.frozen import FrozenModel
 from fogd.inputs import DEFAULT_INPUTS_TEXT, InputSpec, parse_inputs, shifted_columns, static_columns, temperature_columns
@@ -102,7 +103,13 @@ def train(runs: list[Run], config: TrainConfig, prepared: tuple[TrainingSet, flo
         created_utc=created,
         domain_guard=domain_guard_document(data, error, fitted, config.fit) if config.domain_guard else None,
     )
-    model = modelfile.from_document(document)
+    try:
+        model = modelfile.from_document(document)
+    except modelfile.ModelOutputError as error:  # fitted here, so not hostile: a polynomial that extrapolates
+        raise InputError(
+            f"the fitted {config.method} model reaches {error.value_dph:.3g} deg/h within its calibrated input range "
+            f"(beyond the {modelfile.MAX_COMP_DPH:g} deg/h any gyro could need): a polynomial extrapolating between "
+            "inputs; use the default --method pso-svr, or a lower --degree or --poly-terms temp") from None
     fit_dph, _ = model.predict(data.x)
     metrics["train_after"] = ErrorStats.about_run_means(error - fit_dph, data.groups).to_dict()
     return Trained(document, model, fitted, data, reference, error, fit_dph)

@@ -260,3 +260,22 @@ def test_convergence_warnings_are_counted_not_printed(recwarn, monkeypatch) -> N
     assert fitted.unconverged_fits > 0
     assert not [w for w in recwarn if issubclass(w.category, ConvergenceWarning)]
     assert fit("linear", x, y, groups, QUICK).unconverged_fits == 0
+
+
+def test_a_fitted_polynomial_that_extrapolates_wildly_is_refused_in_one_line() -> None:
+    """A 5th-order polynomial in six lagged temperatures reaches millions of deg/h at corners of the calibrated
+    box no run visited: fogd-train says so and what to use, not that the model it just fitted is hostile."""
+    from fogd.inputs import parse_inputs
+    from fogd.runio import Run
+    from fogd.training import TrainConfig, train
+
+    rng = np.random.default_rng(0)
+    runs = []
+    for k in range(3):
+        t_s = np.arange(0.0, 6000.0)
+        temp_c = 20.0 + 25.0 * np.sin(t_s / (700.0 + 200.0 * k) + k) + rng.normal(0.0, 0.05, t_s.size)
+        runs.append(Run(f"r{k}.csv", t_s, 0.01 * temp_c + rng.normal(0.0, 0.01, t_s.size), temp_c, 1.0, str(k), {}))
+    config = TrainConfig(method="ls-poly", inputs=parse_inputs("temp,lags@30..3000/5"), block_s=4.0,
+                         fit=FitOptions(progress=False))  # fmt: skip
+    with pytest.raises(InputError, match=r"ls-poly model reaches .* deg/h within its calibrated input range.*--degree"):
+        train(runs, config)
