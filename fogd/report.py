@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from fogd.atomic import replaced
 from fogd.errors import InputError, describe_os_error
 from fogd.features import TRUE_ERROR_COLUMN
 from fogd.inputs import TEMP, TEMP_RATE
@@ -95,7 +96,8 @@ def write_report(
             lines += _allan_section(index, run, chosen, trained[chosen], out)
     path = out / SUMMARY
     try:
-        path.write_text("\n".join(lines), encoding="utf-8")
+        with replaced(str(path)) as stream:  # a report rewritten over an old one leaves it whole if this fails
+            stream.write("\n".join(lines))
     except OSError as error:
         raise InputError(f"cannot write {describe_os_error(error)}") from None
     return str(path)
@@ -140,7 +142,8 @@ def _save(figure: Figure, out: Path, name: str) -> str:
 
     figure.tight_layout()
     try:
-        figure.savefig(out / name, dpi=DPI)
+        with replaced(str(out / name), binary=True) as stream:
+            figure.savefig(stream, dpi=DPI, format="png")
     except OSError as error:
         raise InputError(f"cannot write {describe_os_error(error)}") from None
     finally:

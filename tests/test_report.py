@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import re
 from pathlib import Path
 
@@ -12,7 +13,7 @@ from fogd.errors import InputError
 from fogd.inputs import default_inputs
 from fogd.models import METHODS, FitOptions
 from fogd.replay import replay, replay_table
-from fogd.report import write_report
+from fogd.report import SUMMARY, write_report
 from fogd.runio import Run, read_run, write_csv
 from fogd.training import TrainConfig, Trained, prepare, train
 
@@ -100,3 +101,26 @@ def test_unwritable_directory_is_an_input_error(
     blocker.write_text("not a directory")
     with pytest.raises(InputError, match="a-file"):
         write_report(str(blocker / "report"), trained, "pso-svr", holdouts, 60.0)
+
+
+def test_a_report_that_cannot_be_written_leaves_the_old_one_whole(
+    trained_runs: tuple[dict[str, Trained], list[Run]], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Every file is written to a temporary file and renamed: when the disk fills in the middle of a figure,
+    the old summary and figures stay byte for byte what they were, and no temporary file is left."""
+    from matplotlib.figure import Figure
+
+    trained, holdouts = trained_runs
+    directory = tmp_path / "report"
+    write_report(str(directory), trained, "pso-svr", holdouts, 60.0)
+    before = {path.name: path.read_bytes() for path in directory.iterdir()}
+    assert SUMMARY in before and any(name.endswith(".png") for name in before)
+
+    def disk_full(self: Figure, stream, **kwargs: object) -> None:
+        stream.write(b"\x89PNG partial")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(Figure, "savefig", disk_full)
+    with pytest.raises(InputError, match="No space left"):
+        write_report(str(directory), trained, "pso-svr", holdouts, 60.0)
+    assert {path.name: path.read_bytes() for path in directory.iterdir()} == before
