@@ -44,7 +44,8 @@ def parser() -> ArgumentParser:
     )  # fmt: skip
     p.add_argument(
         "--inputs", metavar="LIST", default=None,
-        help=f"model inputs (default {DEFAULT_INPUTS_TEXT}, a bank of lags spanning the thermal range; 'paper' is "
+        help=f"model inputs (default {DEFAULT_INPUTS_TEXT}: the sensor temperature and a bank of lags spanning the "
+        "thermal range; 'paper' is "
         f"the paper's temp,rate@WINDOW_S): {INPUTS_SYNTAX}",
     )  # fmt: skip
     p.add_argument(
