@@ -98,7 +98,11 @@ class Compensator:
         temp_in = np.atleast_1d(np.asarray(temp_c, dtype=np.float64))
         n = rate_dph.size
         if n <= SCALAR_CHUNK:
-            return self._process_few(rate_dph, temp_in, rate_valid, temp_stale)
+            return self.process_few(
+                rate_dph.tolist(), temp_in.tolist(),
+                [True] * n if rate_valid is None else np.asarray(rate_valid, dtype=bool).tolist(),
+                [False] * n if temp_stale is None else np.asarray(temp_stale, dtype=bool).tolist(),
+            )  # fmt: skip
         flags = np.zeros(n, dtype=np.uint16)
 
         temp_ok = temperature_valid(temp_in)
@@ -135,17 +139,15 @@ class Compensator:
         rate_comp_dph = np.where(rate_ok, rate_dph - comp_dph, rate_dph)
         return Compensated(temp_used, temp_rate_cps, comp_dph, rate_comp_dph, flags)
 
-    def _process_few(
-        self, rate_dph: np.ndarray, temp_c: np.ndarray, rate_valid: np.ndarray | None, temp_stale: np.ndarray | None
+    def process_few(
+        self, rate_dph: list[float], temp_c: list[float], rate_valid: list[bool], temp_stale: list[bool]
     ) -> Compensated:
-        """`process` one sample at a time in Python floats: the same policies, in the same order."""
-        n = rate_dph.size
-        valid = [True] * n if rate_valid is None else np.asarray(rate_valid, dtype=bool).tolist()
-        stale = [False] * n if temp_stale is None else np.asarray(temp_stale, dtype=bool).tolist()
+        """`process` of a few samples given as Python lists (the daemon's batches at real rates), one sample at
+        a time in Python floats: the same policies, in the same order."""
         low_c, high_c = TEMP_VALID_C
         bank, model, guard, rate_column = self.bank, self.model, self.guard, self._rate_column
         temps, temp_rates, comps, rates_out, flags_out = [], [], [], [], []
-        for rate, temp, rate_ok, is_stale in zip(rate_dph.tolist(), temp_c.tolist(), valid, stale):
+        for rate, temp, rate_ok, is_stale in zip(rate_dph, temp_c, rate_valid, temp_stale):
             flags = 0
             if low_c <= temp <= high_c:  # (NaN is not)
                 self._held_temp_c = temp

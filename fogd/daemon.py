@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 import threading
 import time
@@ -35,9 +36,10 @@ from fogd.estimator import SCALAR_CHUNK
 from fogd.flags import Flag, describe
 from fogd.frozen import FrozenModel
 from fogd.modelfile import check_rate, printable
-from fogd.outputs import Chunk, Formatter, OutputBatch, Writer, rate_row_indices, split_batch
+from fogd.outputs import Chunk, Formatter, OutputBatch, Writer, rate_rows, split_batch
+from fogd.protocols.base import Frame
 from fogd.reader import Reader
-from fogd.ring import Ring
+from fogd.ring import RATE_KINDS, TEMP_KINDS, Ring
 from fogd.sdnotify import Notifier
 from fogd.statsfile import write_stats
 
@@ -47,6 +49,7 @@ status_log = logging.getLogger("fogd.status")
 RING_CAPACITY = 1 << 15  # samples: 1.6 s at 20 kHz
 MAX_BATCH = 4096  # samples per compensation step, which bounds a chunk's size in the writer's queue
 IDLE_WAIT_S = 0.05
+DUTIES_S = 0.01  # status, signals, reloads, thread watch, watchdog: checked at most this often
 FLUSH_TIMEOUT_S = 1.5
 RESTART_DELAY_S = 0.5
 NOTIFY_STATUS_S = 2.0  # how often systemd's STATUS= line is refreshed
@@ -60,34 +63,24 @@ _OUT_OF_DOMAIN, _CLAMPED = int(Flag.OUT_OF_DOMAIN), int(Flag.CLAMPED)
 
 
 class TemperatureHold:
-    """Each record's temperature: the newest one that arrived at or before it, carried across batches, and
+    """Each rate frame's temperature: the newest one that arrived at or before it, carried across batches, and
     its age in receive time (a rate sample with no temperature since the start ages from the start)."""
 
     def __init__(self) -> None:
-        self.temp_c = np.nan
+        self.temp_c = math.nan
         self.rx_s = time.monotonic()
 
-    def hold(self, records: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(temperature held for each record, seconds since it arrived)."""
-        has_temp = records["has_temp"]
-        if len(records) <= SCALAR_CHUNK:  # the usual batch of a frame or two: Python floats, no numpy overhead
-            temps_c, ages_s = [], []
-            for has, temp_c, rx_s in zip(has_temp.tolist(), records["temp_c"].tolist(), records["t_rx_s"].tolist()):
-                if has:
-                    self.temp_c, self.rx_s = temp_c, rx_s
+    def hold(self, frames: list[Frame], t_rx_s: list[float]) -> tuple[list[float], list[float]]:
+        """(temperature held for each frame that carries a rate, seconds since that temperature arrived)."""
+        temps_c, ages_s = [], []
+        for frame, rx_s in zip(frames, t_rx_s):
+            kind = frame.kind
+            if kind in TEMP_KINDS and frame.temp_c is not None:
+                self.temp_c, self.rx_s = frame.temp_c, rx_s
+            if kind in RATE_KINDS:
                 temps_c.append(self.temp_c)
                 ages_s.append(rx_s - self.rx_s)
-            return np.array(temps_c, dtype=np.float64), np.array(ages_s, dtype=np.float64)
-        source = np.where(has_temp, np.arange(has_temp.size), -1)
-        np.maximum.accumulate(source, out=source)
-        known = source >= 0
-        index = np.maximum(source, 0)
-        temp_c = np.where(known, records["temp_c"][index], self.temp_c)
-        rx_s = np.where(known, records["t_rx_s"][index], self.rx_s)
-        if has_temp.any():
-            self.temp_c = float(temp_c[-1])
-            self.rx_s = float(rx_s[-1])
-        return temp_c, records["t_rx_s"] - rx_s
+        return temps_c, ages_s
 
 
 class SampleClock:
@@ -97,15 +90,10 @@ class SampleClock:
         self.rate_hz = rate_hz
         self.count = 0
 
-    def times(self, device_s: np.ndarray) -> np.ndarray:
-        if device_s.size <= SCALAR_CHUNK:
-            first, rate_hz = self.count, self.rate_hz
-            self.count += device_s.size
-            return np.array([(first + i) / rate_hz if t_s != t_s else t_s for i, t_s in enumerate(device_s.tolist())],
-                            dtype=np.float64)  # fmt: skip
-        count_s = (self.count + np.arange(device_s.size)) / self.rate_hz
-        self.count += device_s.size
-        return np.where(np.isnan(device_s), count_s, device_s)
+    def times(self, device_s: list[float | None]) -> list[float]:
+        first, rate_hz = self.count, self.rate_hz
+        self.count += len(device_s)
+        return [(first + i) / rate_hz if t_s is None or t_s != t_s else t_s for i, t_s in enumerate(device_s)]
 
 
 @dataclass
@@ -227,9 +215,16 @@ class Daemon:
         self.writer.start(self.formatter.header())
         self.reader.start()
         self.notifier.send("READY=1", f"STATUS={self.short_status()}")
+        next_duties_s = started_s
         try:
             while not self._stop.is_set():
+                # frames are waited for and compensated at once; the duties below run every DUTIES_S at most
+                if self.ring.wait(IDLE_WAIT_S):
+                    self._drain()
                 now_s = time.monotonic()
+                if now_s < next_duties_s:
+                    continue
+                next_duties_s = now_s + DUTIES_S
                 if self.duration_s is not None and now_s - started_s >= self.duration_s:
                     break
                 if now_s >= next_status_s:
@@ -253,9 +248,6 @@ class Daemon:
                                          float(latest.flags)))  # fmt: skip
                     write_stats(self.stats_path, self.snapshot())
                     next_stats_s = now_s + STATS_EVERY_S
-                self.reader.data_ready.wait(IDLE_WAIT_S)
-                self.reader.data_ready.clear()
-                self._drain()
         finally:
             self.notifier.send("STOPPING=1")
             self.reader.stop()
@@ -347,14 +339,14 @@ class Daemon:
 
     def _drain(self) -> None:
         while True:
-            records = self.ring.pop(MAX_BATCH)
-            if not len(records):
+            frames, t_rx_s = self.ring.pop(MAX_BATCH)
+            if not frames:
                 return
-            self.counters.records_popped += len(records)
+            self.counters.records_popped += len(frames)
             try:
-                batch = self.compensate(records)
+                batch = self.compensate(frames, t_rx_s)
             except Exception as error:  # a bug must cost the batch (counted), never the daemon
-                self._count_unencodable(len(records), error)
+                self._count_unencodable(len(frames), error)
                 continue
             try:
                 chunk = self.formatter.encode(batch)
@@ -370,7 +362,7 @@ class Daemon:
             try:
                 chunk = self.formatter.encode(one)
             except Exception as one_error:
-                self._count_unencodable(len(one.records), one_error)
+                self._count_unencodable(len(one.frames), one_error)
                 continue
             data.append(chunk.data)
             ends.extend(total + end for end in chunk.frame_ends)
@@ -384,29 +376,34 @@ class Daemon:
                       "frames_unencodable", frames, type(error).__name__, printable(str(error))[:200])  # fmt: skip
             self._encode_error_logged = True
 
-    def compensate(self, records: np.ndarray) -> OutputBatch:
-        """One Compensator.process call for every rate sample in `records`."""
-        rows = rate_row_indices(records)
-        temp_c, temp_age_s = self.temperature.hold(records)
-        rates = records["rate_dph"][rows, self.axis]
-        bit = 1 << self.axis
-        usable = (records["axis_valid"][rows] & records["axis_present"][rows] & bit) != 0
-        comp = self.compensator.process(
-            rates, temp_c[rows], rate_valid=usable, temp_stale=temp_age_s[rows] > self.temp_stale_s
-        )
-        self.counters.samples_compensated += rows.size
+    def compensate(self, frames: list[Frame], t_rx_s: list[float]) -> OutputBatch:
+        """One compensator call for every rate sample in `frames` (received at `t_rx_s`)."""
+        rows = rate_rows(frames)
+        temp_c, temp_age_s = self.temperature.hold(frames, t_rx_s)
+        axis, stale_s = self.axis, self.temp_stale_s
+        rated = [frames[row] for row in rows]
+        rates = [frame.rate_dph[axis] for frame in rated]
+        usable = [frame.axis_valid[axis] and frame.axis_present[axis] for frame in rated]
+        stale = [age_s > stale_s for age_s in temp_age_s]
+        if len(rows) <= SCALAR_CHUNK:  # a frame or two at real rates: no numpy on the way in
+            comp = self.compensator.process_few(rates, temp_c, usable, stale)
+        else:
+            comp = self.compensator.process(np.array(rates, dtype=np.float64), np.array(temp_c, dtype=np.float64),
+                                            rate_valid=np.array(usable, dtype=bool), temp_stale=np.array(stale, dtype=bool))  # fmt: skip
+        self.counters.samples_compensated += len(rows)
         self._count_domain(comp.flags)
-        if len(records):
-            latency_s = time.monotonic() - float(records["t_rx_s"][0])  # the oldest record waited longest
+        if frames:
+            latency_s = time.monotonic() - t_rx_s[0]  # the oldest frame waited longest
             self.latency.last_s = latency_s
-            self.latency.max_s = max(self.latency.max_s, latency_s)
-        if rows.size:
-            last = -1
+            if latency_s > self.latency.max_s:
+                self.latency.max_s = latency_s
+        if rows:
             self.latest = Latest(
-                float(rates[last]), float(comp.comp_dph[last]), float(comp.rate_comp_dph[last]),
-                float(comp.temp_c[last]), float(comp.temp_rate_cps[last]), int(comp.flags[last]),
+                rates[-1], float(comp.comp_dph[-1]), float(comp.rate_comp_dph[-1]), float(comp.temp_c[-1]),
+                float(comp.temp_rate_cps[-1]), int(comp.flags[-1]),
             )  # fmt: skip
-        return OutputBatch(records, rows, self.clock.times(records["t_dev_s"][rows]), comp)
+        times = self.clock.times([frame.t_s for frame in rated])
+        return OutputBatch(frames, rows, np.array(times, dtype=np.float64), comp)
 
     def _count_domain(self, flags: np.ndarray) -> None:
         """Running counts of the samples flagged OUT_OF_DOMAIN and CLAMPED."""

@@ -35,7 +35,7 @@ from fogd.errors import DeviceError, describe_os_error
 from fogd.protocols import Protocol
 from fogd.protocols.base import Frame
 from fogd.protocols.fogdbin import SEQ_MODULUS, FogdProtocol
-from fogd.ring import KIND_IMU, KIND_RATE, mask, to_frames
+from fogd.ring import RATE_KINDS
 from fogd.serialio import describe_open_error
 
 log = logging.getLogger("fogd.writer")
@@ -52,8 +52,8 @@ PTY_PREFIX = "pty:"
 class OutputBatch:
     """One batch from the ring, compensated: `comp` and `t_s` have one row per entry of `rate_rows`."""
 
-    records: np.ndarray  # ring records (fogd.ring.SAMPLE_DTYPE), in arrival order
-    rate_rows: np.ndarray  # indices of the records that carry a rate
+    frames: list[Frame]  # as the lexer decoded them, in arrival order
+    rate_rows: list[int]  # indices of the frames that carry a rate
     t_s: np.ndarray  # output time of each rate row
     comp: Compensated  # the compensated axis, per rate row
 
@@ -93,11 +93,10 @@ class Formatter:
 
     def _same(self, batch: OutputBatch) -> list[bytes]:
         """Every input frame, rate frames re-encoded with the compensated rate and a fresh CRC."""
-        frames = to_frames(batch.records, self.protocol.name)
-        compensated = dict(zip(batch.rate_rows.tolist(), batch.comp.rate_comp_dph.tolist()))
+        compensated = dict(zip(batch.rate_rows, batch.comp.rate_comp_dph.tolist()))
         axis, reencode = self.axis, self.protocol.reencode
         pieces = []
-        for index, frame in enumerate(frames):
+        for index, frame in enumerate(batch.frames):
             rate_comp = compensated.get(index)
             if rate_comp is None:
                 pieces.append(frame.raw)
@@ -109,23 +108,21 @@ class Formatter:
 
     def _fogd(self, batch: OutputBatch) -> list[bytes]:
         """One fogd compensated-output frame per rate sample."""
-        records = batch.records[batch.rate_rows]
         comp = batch.comp
         axis = self.axis
         pieces = []
         columns = zip(
-            batch.t_s.tolist(), records["rate_dph"].tolist(), records["axis_valid"].tolist(),
-            records["axis_present"].tolist(), comp.temp_c.tolist(), comp.temp_rate_cps.tolist(),
-            comp.comp_dph.tolist(), comp.rate_comp_dph.tolist(), comp.flags.tolist(),
+            batch.t_s.tolist(), [batch.frames[row] for row in batch.rate_rows], comp.temp_c.tolist(),
+            comp.temp_rate_cps.tolist(), comp.comp_dph.tolist(), comp.rate_comp_dph.tolist(), comp.flags.tolist(),
         )  # fmt: skip
-        for t_s, rates, valid, present, temp_c, temp_rate_cps, comp_dph, rate_comp_dph, flags in columns:
+        for t_s, rated, temp_c, temp_rate_cps, comp_dph, rate_comp_dph, flags in columns:
             comps = [0.0, 0.0, 0.0]
             comps[axis] = comp_dph
-            rates_comp = list(rates)
+            rates_comp = list(rated.rate_dph)
             rates_comp[axis] = rate_comp_dph
             frame = Frame(
-                "fogd", "comp", "comp", self._seq, max(t_s, 0.0), tuple(rates), mask(valid), mask(present),
-                temp_c, b"", temp_rate_cps, tuple(comps), tuple(rates_comp), flags,
+                "fogd", "comp", "comp", self._seq, max(t_s, 0.0), tuple(rated.rate_dph), rated.axis_valid,
+                rated.axis_present, temp_c, b"", temp_rate_cps, tuple(comps), tuple(rates_comp), flags,
             )  # fmt: skip
             pieces.append(self._fogd_protocol.encode(frame))
             self._seq = (self._seq + 1) % SEQ_MODULUS
@@ -133,9 +130,9 @@ class Formatter:
 
     def _rows(self, batch: OutputBatch):
         comp = batch.comp
-        raw = batch.records["rate_dph"][batch.rate_rows, self.axis]
+        axis, frames = self.axis, batch.frames
         return zip(
-            batch.t_s.tolist(), raw.tolist(), comp.temp_c.tolist(), comp.temp_rate_cps.tolist(),
+            batch.t_s.tolist(), [frames[row].rate_dph[axis] for row in batch.rate_rows], comp.temp_c.tolist(), comp.temp_rate_cps.tolist(),
             comp.comp_dph.tolist(), comp.rate_comp_dph.tolist(), comp.flags.tolist(),
         )  # fmt: skip
 
@@ -160,25 +157,24 @@ def _json(value: float) -> str:
 
 
 def split_batch(batch: OutputBatch) -> list[OutputBatch]:
-    """The batch as one batch per record (the slow path that isolates a frame no format can encode)."""
-    position = {int(row): j for j, row in enumerate(batch.rate_rows.tolist())}
+    """The batch as one batch per frame (the slow path that isolates a frame no format can encode)."""
+    position = {row: j for j, row in enumerate(batch.rate_rows)}
     comp = batch.comp
     batches = []
-    for i in range(len(batch.records)):
+    for i, frame in enumerate(batch.frames):
         j = position.get(i)
         rows = slice(j, j + 1) if j is not None else slice(0, 0)
         batches.append(OutputBatch(
-            batch.records[i : i + 1], np.zeros(1 if j is not None else 0, dtype=np.intp), batch.t_s[rows],
+            [frame], [0] if j is not None else [], batch.t_s[rows],
             Compensated(comp.temp_c[rows], comp.temp_rate_cps[rows], comp.comp_dph[rows], comp.rate_comp_dph[rows],
                         comp.flags[rows]),
         ))  # fmt: skip
     return batches
 
 
-def rate_row_indices(records: np.ndarray) -> np.ndarray:
-    """Indices of the ring records that carry a gyro rate."""
-    kind = records["kind"]
-    return np.flatnonzero((kind == KIND_IMU) | (kind == KIND_RATE))
+def rate_rows(frames: list[Frame]) -> list[int]:
+    """Indices of the frames that carry a gyro rate."""
+    return [index for index, frame in enumerate(frames) if frame.kind in RATE_KINDS]
 
 
 class SinkError(Exception):

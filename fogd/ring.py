@@ -1,96 +1,30 @@
-"""The ring buffer between the reader thread and the compensation loop: decoded samples in a preallocated
-numpy structured array, one producer and one consumer, batches in and batches out.
+"""The ring buffer between the reader thread and the compensation loop: a bounded queue of frame batches,
+one producer and one consumer, counted in frames.
 
-Each slot holds one decoded frame (`SAMPLE_DTYPE`): what kind it is, its sequence number, device and receive
-times, the three rates with their valid/present bits, the temperature, and the raw frame bytes so the
-output can re-encode the very frame that came in. The producer never waits: samples that do not fit in a
-full ring are dropped and counted as overruns. With one producer and one consumer each index has a single
-writer, and the slots are written before the index that publishes them, so no lock is needed.
+Each entry is one read's decoded `Frame`s with the time that read returned; the frames are handed over as
+the lexer made them (no per-frame copy into and out of a numpy record). The producer never waits: frames that
+do not fit in the `capacity` left are dropped (the newest) and counted as overruns. The consumer can block in
+`wait` until a batch arrives (a C-level lock in `queue.SimpleQueue`, no Python `Condition` per frame) and pops
+batches up to a frame count, splitting a batch when it must, so order is kept and nothing is lost or doubled.
+The frame count `pushed - popped` has one writer per counter, so no lock is needed for it.
 """
 
 from __future__ import annotations
 
-import math
-from collections.abc import Sequence
-
-import numpy as np
+import queue
+from collections import deque
 
 from fogd.protocols.base import Frame
 
-RAW_SLOT_BYTES = 256  # the longest frame any protocol produces (an ASCII line; fogd frames are <= 255)
-
-KIND_IMU = 1  # rate and temperature in one frame
-KIND_RATE = 2
-KIND_TEMP = 3
-KIND_OTHER = 4  # recognised frames carrying nothing fogd uses (passed through by output format 'same')
-KIND_CODES = {"imu": KIND_IMU, "rate": KIND_RATE, "temp": KIND_TEMP}
-KIND_NAMES = {KIND_IMU: "imu", KIND_RATE: "rate", KIND_TEMP: "temp", KIND_OTHER: "other"}
-
-SAMPLE_DTYPE = np.dtype(
-    [
-        ("kind", np.uint8),
-        ("message", "S8"),  # the wire message ('A', 'rate', 'dsp3000', ...), for re-encoding
-        ("seq", np.int32),  # -1 when the format has no counter
-        ("t_dev_s", np.float64),  # device time; NaN when the format has none
-        ("t_rx_s", np.float64),  # time.monotonic() when the read that completed the frame returned
-        ("rate_dph", np.float64, (3,)),  # NaN for frames without a rate
-        ("axis_valid", np.uint8),  # bit i: axis i valid
-        ("axis_present", np.uint8),  # bit i: axis i present
-        ("temp_c", np.float64),  # NaN when the frame has no temperature (or an invalid one)
-        ("has_temp", np.bool_),
-        ("raw_len", np.uint16),
-        ("raw", np.uint8, (RAW_SLOT_BYTES,)),
-    ]
-)
-
-_NAN3 = (math.nan, math.nan, math.nan)
+KIND_NAMES = ("imu", "rate", "temp", "other")  # how the reader counts frames in ('comp' frames are 'other')
+RATE_KINDS = frozenset(("imu", "rate"))  # frames carrying a gyro rate the daemon compensates
+TEMP_KINDS = frozenset(("imu", "temp"))  # frames whose temperature the daemon holds
 
 
-def _bits(mask: Sequence[bool]) -> int:
-    return (1 if mask[0] else 0) | (2 if mask[1] else 0) | (4 if mask[2] else 0)
-
-
-def pack_frames(frames: Sequence[Frame], t_rx_s: float) -> np.ndarray:
-    """The ring records for one read's frames ('comp' frames are kept as kind 'other': fogd does not
-    re-compensate its own output)."""
-    n = len(frames)
-    batch = np.zeros(n, dtype=SAMPLE_DTYPE)
-    if n == 0:
-        return batch
-    raw = bytearray(n * RAW_SLOT_BYTES)
-    kinds, messages, seqs, times, rates, valid, present, temps, has_temp, lengths = ([] for _ in range(10))
-    for i, frame in enumerate(frames):
-        kinds.append(KIND_CODES.get(frame.kind, KIND_OTHER))
-        messages.append(frame.message.encode("ascii", "replace"))
-        seqs.append(-1 if frame.seq is None else frame.seq)
-        times.append(math.nan if frame.t_s is None else frame.t_s)
-        rates.append(frame.rate_dph or _NAN3)
-        valid.append(_bits(frame.axis_valid))
-        present.append(_bits(frame.axis_present))
-        temp = frame.temp_c
-        has_temp.append(temp is not None and frame.kind in ("imu", "temp"))
-        temps.append(math.nan if temp is None else temp)
-        data = frame.raw[:RAW_SLOT_BYTES]
-        lengths.append(len(data))
-        raw[i * RAW_SLOT_BYTES : i * RAW_SLOT_BYTES + len(data)] = data
-    batch["kind"] = kinds
-    batch["message"] = messages
-    batch["seq"] = seqs
-    batch["t_dev_s"] = times
-    batch["t_rx_s"] = t_rx_s
-    batch["rate_dph"] = rates
-    batch["axis_valid"] = valid
-    batch["axis_present"] = present
-    batch["temp_c"] = temps
-    batch["has_temp"] = has_temp
-    batch["raw_len"] = lengths
-    batch["raw"] = np.frombuffer(raw, dtype=np.uint8).reshape(n, RAW_SLOT_BYTES)
-    return batch
-
-
-def raw_bytes(record: np.void) -> bytes:
-    """The frame bytes stored in one ring record."""
-    return record["raw"][: record["raw_len"]].tobytes()
+def kind_name(frame: Frame) -> str:
+    """The reader's count a frame goes in: fogd does not re-compensate its own output, so 'comp' is 'other'."""
+    kind = frame.kind
+    return kind if kind in ("imu", "rate", "temp") else "other"
 
 
 def mask(bits: int) -> tuple[bool, bool, bool]:
@@ -98,85 +32,65 @@ def mask(bits: int) -> tuple[bool, bool, bool]:
     return (bool(bits & 1), bool(bits & 2), bool(bits & 4))
 
 
-def to_frames(batch: np.ndarray, protocol: str) -> list[Frame]:
-    """The `Frame`s ring records came from (enough of each to re-encode it; no compensated fields)."""
-    columns = zip(
-        batch["kind"].tolist(),
-        batch["message"].tolist(),
-        batch["seq"].tolist(),
-        batch["t_dev_s"].tolist(),
-        batch["rate_dph"].tolist(),
-        batch["axis_valid"].tolist(),
-        batch["axis_present"].tolist(),
-        batch["temp_c"].tolist(),
-        batch["has_temp"].tolist(),
-        batch["raw_len"].tolist(),
-    )
-    raw = batch["raw"].tobytes()
-    frames = []
-    for i, (kind, message, seq, t_s, rates, valid, present, temp, has_temp, length) in enumerate(columns):
-        name = KIND_NAMES[kind]
-        frames.append(
-            Frame(
-                protocol,
-                name,
-                message.decode("ascii"),
-                None if seq < 0 else seq,
-                None if t_s != t_s else t_s,  # NaN: no device time
-                tuple(rates) if name in ("imu", "rate") else None,
-                mask(valid),
-                mask(present),
-                temp if has_temp else None,
-                raw[i * RAW_SLOT_BYTES : i * RAW_SLOT_BYTES + length],
-            )
-        )
-    return frames
-
-
 class Ring:
-    """Single-producer, single-consumer ring of `dtype` records with a fixed capacity."""
+    """Single-producer, single-consumer ring of frame batches holding at most `capacity` frames."""
 
-    def __init__(self, capacity: int, dtype: np.dtype = SAMPLE_DTYPE) -> None:
+    def __init__(self, capacity: int) -> None:
         if capacity < 1:
             raise ValueError(f"ring capacity must be at least 1, not {capacity}")
         self.capacity = capacity
-        self._slots = np.zeros(capacity, dtype=dtype)
-        self._head = 0  # records ever pushed (written by the producer only)
-        self._tail = 0  # records ever popped (written by the consumer only)
-        self.overruns = 0  # records dropped because the ring was full (producer only)
+        self._queue: queue.SimpleQueue[tuple[float, list[Frame]]] = queue.SimpleQueue()
+        self._taken: deque[tuple[float, list[Frame]]] = deque()  # off the queue, not yet popped (consumer only)
+        self._pushed = 0  # frames ever stored (written by the producer only)
+        self._popped = 0  # frames ever popped (written by the consumer only)
+        self.overruns = 0  # frames dropped because the ring was full (producer only)
 
     def __len__(self) -> int:
-        return self._head - self._tail
+        return self._pushed - self._popped
 
-    def push(self, batch: np.ndarray) -> int:
-        """Append as much of `batch` as fits; the rest is dropped and counted. Returns the number stored."""
-        free = self.capacity - (self._head - self._tail)
-        count = min(len(batch), free)
-        if count < len(batch):
-            self.overruns += len(batch) - count
+    def push(self, frames: list[Frame], t_rx_s: float) -> int:
+        """Append as many of one read's `frames` as fit; the rest is dropped and counted. Returns the number
+        stored. `t_rx_s` is the monotonic time the read that completed them returned."""
+        free = self.capacity - (self._pushed - self._popped)
+        count = len(frames)
+        if count > free:
+            self.overruns += count - max(free, 0)
+            count = max(free, 0)
+            frames = frames[:count]
         if count == 0:
             return 0
-        start = self._head % self.capacity
-        first = min(count, self.capacity - start)
-        self._slots[start : start + first] = batch[:first]
-        if count > first:  # wrapped
-            self._slots[: count - first] = batch[first:count]
-        self._head += count  # publish only after the slots are written
+        self._pushed += count  # counted before it is visible: a pop never makes the length negative
+        self._queue.put((t_rx_s, frames))
         return count
 
-    def pop(self, max_count: int | None = None) -> np.ndarray:
-        """Remove and return (a copy of) up to `max_count` of the oldest records, oldest first."""
-        count = self._head - self._tail
-        if max_count is not None:
-            count = min(count, max_count)
-        start = self._tail % self.capacity
-        first = min(count, self.capacity - start)
-        # a copy by slicing, not np.concatenate: promoting a structured dtype costs more than the copy itself
-        if count == first:
-            out = self._slots[start : start + count].copy()
-        else:  # wrapped
-            out = np.empty(count, dtype=self._slots.dtype)
-            out[:first] = self._slots[start:]
-            out[first:] = self._slots[: count - first]
-        self._tail += count
-        return out
+    def wait(self, timeout_s: float) -> bool:
+        """Block until a batch can be popped or `timeout_s` passes; True if one can."""
+        if self._taken:
+            return True
+        try:
+            self._taken.append(self._queue.get(timeout=timeout_s))
+        except queue.Empty:
+            return False
+        return True
+
+    def pop(self, max_count: int | None = None) -> tuple[list[Frame], list[float]]:
+        """Remove up to `max_count` of the oldest frames, oldest first, with each one's receive time."""
+        frames: list[Frame] = []
+        times: list[float] = []
+        limit = self.capacity if max_count is None else max_count
+        taken, pending = self._taken, self._queue
+        while len(frames) < limit:
+            if taken:
+                t_rx_s, batch = taken.popleft()
+            elif not pending.empty():
+                t_rx_s, batch = pending.get_nowait()
+            else:
+                break
+            room = limit - len(frames)
+            if len(batch) > room:  # the rest stays first in line
+                taken.appendleft((t_rx_s, batch[room:]))
+                batch = batch[:room]
+            frames += batch
+            times += [t_rx_s] * len(batch)
+        self._popped += len(frames)
+        return frames, times

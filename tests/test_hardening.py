@@ -4,6 +4,7 @@ daemon are in test_hardening_e2e.py."""
 
 from __future__ import annotations
 
+import math
 import json
 import os
 import struct
@@ -25,14 +26,13 @@ from fogd.errors import ConfigError, ModelFileError, UsageError
 from fogd.estimator import EstimatorSettings
 from fogd.inputs import default_inputs
 from fogd.lexer import Lexer
-from fogd.outputs import OUT_FORMATS, Formatter, OutputBatch, rate_row_indices
+from fogd.outputs import OUT_FORMATS, Formatter, OutputBatch, rate_rows
 from fogd.protocols import get
 from fogd.protocols.ascii import checksum
 from fogd.protocols.base import ALL_AXES, Frame
 from fogd.protocols.crc import crc16_ccitt_false, crc32_mpeg2
 from fogd.protocols.fogdbin import FRAME_LENGTHS as FOGD_LENGTHS
 from fogd.protocols.kvh import HEADER_A
-from fogd.ring import pack_frames
 from fogd.runio import read_run
 
 FUZZ = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -224,11 +224,11 @@ def test_crafted_frames_that_killed_the_daemon_are_refused_and_counted():
 
 def compensate_and_encode(frames: list[Frame], protocol_name: str) -> None:
     """Every decoded frame through the compensator and every output format, as the daemon does."""
-    records = pack_frames(frames, 1.0)
-    rows = rate_row_indices(records)
+    rows = rate_rows(frames)
     model = modelfile.from_document(model_document())
-    comp = Compensator(model, 1000.0).process(records["rate_dph"][rows, 2], records["temp_c"][rows])
-    batch = OutputBatch(records, rows, np.arange(rows.size) / 1000.0, comp)
+    temps = [math.nan if frames[i].temp_c is None else frames[i].temp_c for i in rows]
+    comp = Compensator(model, 1000.0).process(np.array([frames[i].rate_dph[2] for i in rows]), np.array(temps))
+    batch = OutputBatch(frames, rows, np.arange(len(rows)) / 1000.0, comp)
     for out_format in OUT_FORMATS:
         Formatter(out_format, get(protocol_name), 2).encode(batch)
 

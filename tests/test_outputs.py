@@ -17,11 +17,10 @@ from fogd.estimator import EstimatorSettings
 from fogd.frozen import FrozenModel, Linear
 from fogd.inputs import default_inputs
 from fogd.lexer import Lexer
-from fogd.outputs import CSV_COLUMNS, Chunk, Formatter, OutputBatch, Writer, open_sink, rate_row_indices
+from fogd.outputs import CSV_COLUMNS, Chunk, Formatter, OutputBatch, Writer, open_sink, rate_rows
 from fogd.protocols import get
 from fogd.protocols.base import ALL_AXES, Frame
 from fogd.protocols.kvh import DPH_PER_RAD_S
-from fogd.ring import pack_frames
 
 RATE_HZ = 100.0
 Z = 2
@@ -49,10 +48,10 @@ def kvh_batch(n: int = 60) -> tuple[OutputBatch, list[Frame]]:
         rates = (1.5 * DPH_PER_RAD_S * 1e-5, -2.0 * DPH_PER_RAD_S * 1e-5, (i % 7) * DPH_PER_RAD_S * 1e-6)
         wire = Frame("kvh-a", "imu", "A", i % 128, None, rates, ALL_AXES, ALL_AXES, 20.0 + i // 20)
         frames.append(kvh.decode(kvh.encode(wire)))
-    records = pack_frames(frames, t_rx_s=1.0)
-    rows = rate_row_indices(records)
-    comp = Compensator(model(), RATE_HZ).process(records["rate_dph"][rows, Z], records["temp_c"][rows])
-    return OutputBatch(records, rows, np.arange(rows.size) / RATE_HZ, comp), frames
+    rows = rate_rows(frames)
+    comp = Compensator(model(), RATE_HZ).process(np.array([frames[i].rate_dph[Z] for i in rows]),
+                                                 np.array([frames[i].temp_c for i in rows]))  # fmt: skip
+    return OutputBatch(frames, rows, np.arange(len(rows)) / RATE_HZ, comp), frames
 
 
 def test_csv_parses_to_replay_columns():
@@ -116,10 +115,9 @@ def test_same_passes_frames_without_a_rate_through():
     fogd = get("fogd", comp_axes=(Z,))
     temp = fogd.decode(fogd.encode(Frame("fogd", "temp", "temp", 1, 0.5, temp_c=25.0)))
     rate = fogd.decode(fogd.encode(Frame("fogd", "rate", "rate", 1, 0.5, (0.0, 0.0, 3.0), ALL_AXES, ALL_AXES)))
-    records = pack_frames([temp, rate], 0.0)
-    rows = rate_row_indices(records)
+    rows = rate_rows([temp, rate])
     comp = Compensator(model(), RATE_HZ).process(np.array([3.0]), np.array([25.0]))
-    chunk = Formatter("same", fogd, Z).encode(OutputBatch(records, rows, np.zeros(1), comp))
+    chunk = Formatter("same", fogd, Z).encode(OutputBatch([temp, rate], rows, np.zeros(1), comp))
     out = Lexer(fogd).feed(chunk.data)
     assert out[0].raw == temp.raw
     assert out[1].rate_dph[Z] == pytest.approx(comp.rate_comp_dph[0], rel=1e-6)

@@ -30,6 +30,7 @@ from fogd.inputs import default_inputs
 from fogd.lexer import Lexer
 from fogd.outputs import Formatter, Writer, open_sink
 from fogd.protocols import get
+from fogd.protocols.base import ALL_AXES, Frame
 from fogd.reader import Reader
 from fogd.ring import Ring
 from fogd.serialio import PortOpener, open_port
@@ -277,7 +278,6 @@ def test_shares_of_fallback_and_clamping_in_status_stats_and_metrics(tmp_path):
     """Running counts of OUT_OF_DOMAIN and CLAMPED samples, frame by frame and in one large batch, equal the
     flags the compensator returned; the status line, the snapshot and the metrics carry them."""
     from fogd.metrics_http import render
-    from fogd.ring import KIND_IMU, SAMPLE_DTYPE
 
     doc = modelfile.document(
         name="guarded", method="linear", inputs=default_inputs(EstimatorSettings(window_s=0.5, average_s=0.05)),
@@ -295,13 +295,12 @@ def test_shares_of_fallback_and_clamping_in_status_stats_and_metrics(tmp_path):
                     status_interval_s=60.0)  # fmt: skip
     assert "| fallback - clamped - |" in daemon.status_line()
     samples = 2000
-    records = np.zeros(samples, dtype=SAMPLE_DTYPE)
-    records["kind"], records["axis_valid"], records["axis_present"], records["has_temp"] = KIND_IMU, 7, 7, True
-    records["t_dev_s"], records["t_rx_s"] = np.nan, time.monotonic()
     # steady at 20 C, then a ramp of 5 C/s (far from the guard's points, which have no rate) up past 24 C
-    records["temp_c"] = np.r_[np.full(800, 20.0), np.linspace(20.0, 26.0, 1200)]
-    one_by_one = [daemon.compensate(records[i : i + 1]).comp.flags for i in range(1800)]
-    flags = np.concatenate([*one_by_one, daemon.compensate(records[1800:]).comp.flags]).astype(int)
+    temps_c = np.r_[np.full(800, 20.0), np.linspace(20.0, 26.0, 1200)].tolist()
+    frames = [Frame("kvh-a", "imu", "A", None, None, (0.0, 0.0, 0.0), ALL_AXES, ALL_AXES, t) for t in temps_c]
+    t_rx_s = [time.monotonic()] * samples
+    one_by_one = [daemon.compensate(frames[i : i + 1], t_rx_s[i : i + 1]).comp.flags for i in range(1800)]
+    flags = np.concatenate([*one_by_one, daemon.compensate(frames[1800:], t_rx_s[1800:]).comp.flags]).astype(int)
     out_of_domain, clamped = int(((flags & 32) != 0).sum()), int(((flags & 2) != 0).sum())
     assert 0 < out_of_domain < samples and 0 < clamped < samples
     for part in (flags[:1800], flags[1800:]):  # both flags seen by the per-frame path and the batch path

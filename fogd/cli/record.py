@@ -26,7 +26,8 @@ from fogd.daemon import RING_CAPACITY, SampleClock, TemperatureHold
 from fogd.errors import DeviceError, describe_os_error
 from fogd.estimator import EstimatorSettings, TempRateEstimator
 from fogd.lexer import Lexer
-from fogd.outputs import rate_row_indices
+from fogd.outputs import rate_rows
+from fogd.protocols.base import Frame
 from fogd.reader import Reader
 from fogd.ring import Ring
 from fogd.runio import RUN_COLUMNS
@@ -67,7 +68,7 @@ def parser() -> ArgumentParser:
 
 
 class Recorder:
-    """Turns batches of ring records into CSV rows and keeps what the status line shows."""
+    """Turns batches of ring frames into CSV rows and keeps what the status line shows."""
 
     def __init__(self, stream: IO[str], axis: int, rate_hz: float, decimate: int = 1) -> None:
         self.stream = stream
@@ -82,11 +83,12 @@ class Recorder:
         self.temp_c = float("nan")
         self.temp_rate_cps = float("nan")
 
-    def write(self, records: np.ndarray) -> None:
-        rows = rate_row_indices(records)
-        temp_c = self.temperature.hold(records)[0][rows]
-        t_s = self.clock.times(records["t_dev_s"][rows])
-        rate_dph = records["rate_dph"][rows, self.axis]
+    def write(self, batch: tuple[list[Frame], list[float]]) -> None:
+        frames, t_rx_s = batch
+        rated = [frames[row] for row in rate_rows(frames)]
+        temp_c = np.array(self.temperature.hold(frames, t_rx_s)[0], dtype=np.float64)
+        t_s = np.array(self.clock.times([frame.t_s for frame in rated]), dtype=np.float64)
+        rate_dph = np.array([frame.rate_dph[self.axis] for frame in rated], dtype=np.float64)
         known = ~np.isnan(temp_c)
         self.skipped_no_temp += int((~known).sum())
         if not known.any():
@@ -154,8 +156,7 @@ def body(argv: Sequence[str] | None) -> int:
             if not reader.alive:
                 log.error("reader thread died (%r); restarting it", reader.error)
                 reader.start()
-            reader.data_ready.wait(IDLE_WAIT_S)
-            reader.data_ready.clear()
+            ring.wait(IDLE_WAIT_S)
             recorder.write(ring.pop())
             if now_s >= next_flush_s:
                 stream.flush()
