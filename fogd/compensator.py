@@ -44,7 +44,8 @@ _OUT_OF_DOMAIN, _RATE_INVALID, _TEMP_STALE = int(Flag.OUT_OF_DOMAIN), int(Flag.R
 
 @dataclass
 class Compensated:
-    """One chunk of compensated samples (all arrays the length of the input chunk)."""
+    """One chunk of compensated samples (all the length of the input chunk): arrays, or lists from
+    `Compensator.process_few`."""
 
     temp_c: np.ndarray  # the temperature used (held where the input was invalid)
     temp_rate_cps: np.ndarray
@@ -98,10 +99,15 @@ class Compensator:
         temp_in = np.atleast_1d(np.asarray(temp_c, dtype=np.float64))
         n = rate_dph.size
         if n <= SCALAR_CHUNK:
-            return self.process_few(
+            few = self.process_few(
                 rate_dph.tolist(), temp_in.tolist(),
                 [True] * n if rate_valid is None else np.asarray(rate_valid, dtype=bool).tolist(),
                 [False] * n if temp_stale is None else np.asarray(temp_stale, dtype=bool).tolist(),
+            )  # fmt: skip
+            return Compensated(
+                np.array(few.temp_c, dtype=np.float64), np.array(few.temp_rate_cps, dtype=np.float64),
+                np.array(few.comp_dph, dtype=np.float64), np.array(few.rate_comp_dph, dtype=np.float64),
+                np.array(few.flags, dtype=np.uint16),
             )  # fmt: skip
         flags = np.zeros(n, dtype=np.uint16)
 
@@ -143,7 +149,8 @@ class Compensator:
         self, rate_dph: list[float], temp_c: list[float], rate_valid: list[bool], temp_stale: list[bool]
     ) -> Compensated:
         """`process` of a few samples given as Python lists (the daemon's batches at real rates), one sample at
-        a time in Python floats: the same policies, in the same order."""
+        a time in Python floats: the same policies, in the same order. The result holds lists, not arrays: a
+        frame's values go on to its encoding without a numpy call on the way."""
         low_c, high_c = TEMP_VALID_C
         bank, model, guard, rate_column = self.bank, self.model, self.guard, self._rate_column
         temps, temp_rates, comps, rates_out, flags_out = [], [], [], [], []
@@ -179,11 +186,7 @@ class Compensator:
             comps.append(comp)
             rates_out.append(rate - comp if rate_ok else rate)
             flags_out.append(flags)
-        return Compensated(
-            np.array(temps, dtype=np.float64), np.array(temp_rates, dtype=np.float64),
-            np.array(comps, dtype=np.float64), np.array(rates_out, dtype=np.float64),
-            np.array(flags_out, dtype=np.uint16),
-        )  # fmt: skip
+        return Compensated(temps, temp_rates, comps, rates_out, flags_out)  # type: ignore[arg-type]
 
     def _hold(self, temp_c: np.ndarray, valid: np.ndarray) -> np.ndarray:
         held = hold_temperature(temp_c, valid, self._held_temp_c)

@@ -36,7 +36,7 @@ from fogd.estimator import SCALAR_CHUNK
 from fogd.flags import Flag, describe
 from fogd.frozen import FrozenModel
 from fogd.modelfile import check_rate, printable
-from fogd.outputs import Chunk, Formatter, OutputBatch, Writer, rate_rows, split_batch
+from fogd.outputs import Chunk, Formatter, OutputBatch, Writer, split_batch
 from fogd.protocols.base import Frame
 from fogd.reader import Reader
 from fogd.ring import RATE_KINDS, TEMP_KINDS, Ring
@@ -62,6 +62,18 @@ NOT_DROPS = ("frames_ok", "other_frames", "frame_bytes", "seq_resets")  # lexer 
 _OUT_OF_DOMAIN, _CLAMPED = int(Flag.OUT_OF_DOMAIN), int(Flag.CLAMPED)
 
 
+@dataclass
+class RateSamples:
+    """The rate frames of a batch, column by column (Python lists, one entry per rate frame)."""
+
+    rows: list[int]  # index of each rate frame in the batch
+    rate_dph: list[float]  # the compensated axis
+    usable: list[bool]  # the axis present and valid
+    device_s: list[float | None]  # the device's time, if the protocol has one
+    temp_c: list[float]  # the newest temperature received at or before the frame (NaN: none yet)
+    temp_age_s: list[float]  # how long before the frame that temperature arrived
+
+
 class TemperatureHold:
     """Each rate frame's temperature: the newest one that arrived at or before it, carried across batches, and
     its age in receive time (a rate sample with no temperature since the start ages from the start)."""
@@ -70,17 +82,25 @@ class TemperatureHold:
         self.temp_c = math.nan
         self.rx_s = time.monotonic()
 
-    def hold(self, frames: list[Frame], t_rx_s: list[float]) -> tuple[list[float], list[float]]:
-        """(temperature held for each frame that carries a rate, seconds since that temperature arrived)."""
-        temps_c, ages_s = [], []
-        for frame, rx_s in zip(frames, t_rx_s):
+    def rate_samples(self, frames: list[Frame], t_rx_s: list[float], axis: int) -> RateSamples:
+        """The frames that carry a rate, as columns for the compensator, each with the temperature held for it."""
+        samples = RateSamples([], [], [], [], [], [])
+        rows, rates, usable, device_s = samples.rows, samples.rate_dph, samples.usable, samples.device_s
+        temps_c, ages_s = samples.temp_c, samples.temp_age_s
+        held_c, held_rx_s = self.temp_c, self.rx_s
+        for index, frame in enumerate(frames):  # one pass, no numpy: usually a single frame
             kind = frame.kind
             if kind in TEMP_KINDS and frame.temp_c is not None:
-                self.temp_c, self.rx_s = frame.temp_c, rx_s
+                held_c, held_rx_s = frame.temp_c, t_rx_s[index]
             if kind in RATE_KINDS:
-                temps_c.append(self.temp_c)
-                ages_s.append(rx_s - self.rx_s)
-        return temps_c, ages_s
+                rows.append(index)
+                rates.append(frame.rate_dph[axis])
+                usable.append(frame.axis_valid[axis] and frame.axis_present[axis])
+                device_s.append(frame.t_s)
+                temps_c.append(held_c)
+                ages_s.append(t_rx_s[index] - held_rx_s)
+        self.temp_c, self.rx_s = held_c, held_rx_s
+        return samples
 
 
 class SampleClock:
@@ -378,13 +398,10 @@ class Daemon:
 
     def compensate(self, frames: list[Frame], t_rx_s: list[float]) -> OutputBatch:
         """One compensator call for every rate sample in `frames` (received at `t_rx_s`)."""
-        rows = rate_rows(frames)
-        temp_c, temp_age_s = self.temperature.hold(frames, t_rx_s)
-        axis, stale_s = self.axis, self.temp_stale_s
-        rated = [frames[row] for row in rows]
-        rates = [frame.rate_dph[axis] for frame in rated]
-        usable = [frame.axis_valid[axis] and frame.axis_present[axis] for frame in rated]
-        stale = [age_s > stale_s for age_s in temp_age_s]
+        samples = self.temperature.rate_samples(frames, t_rx_s, self.axis)
+        rows, rates, usable, temp_c = samples.rows, samples.rate_dph, samples.usable, samples.temp_c
+        stale_s = self.temp_stale_s
+        stale = [age_s > stale_s for age_s in samples.temp_age_s]
         if len(rows) <= SCALAR_CHUNK:  # a frame or two at real rates: no numpy on the way in
             comp = self.compensator.process_few(rates, temp_c, usable, stale)
         else:
@@ -402,15 +419,17 @@ class Daemon:
                 rates[-1], float(comp.comp_dph[-1]), float(comp.rate_comp_dph[-1]), float(comp.temp_c[-1]),
                 float(comp.temp_rate_cps[-1]), int(comp.flags[-1]),
             )  # fmt: skip
-        times = self.clock.times([frame.t_s for frame in rated])
-        return OutputBatch(frames, rows, np.array(times, dtype=np.float64), comp)
+        times = self.clock.times(samples.device_s)
+        return OutputBatch(frames, rows, times if len(rows) <= SCALAR_CHUNK else np.array(times, dtype=np.float64), comp)
 
-    def _count_domain(self, flags: np.ndarray) -> None:
+    def _count_domain(self, flags: np.ndarray | list[int]) -> None:
         """Running counts of the samples flagged OUT_OF_DOMAIN and CLAMPED."""
-        if flags.size <= SCALAR_CHUNK:  # a frame or two: Python ints cost less than two numpy calls
-            values = [value for value in flags.tolist() if value & (_OUT_OF_DOMAIN | _CLAMPED)]
-            self.counters.samples_out_of_domain += sum(1 for value in values if value & _OUT_OF_DOMAIN)
-            self.counters.samples_clamped += sum(1 for value in values if value & _CLAMPED)
+        if isinstance(flags, list):  # a frame or two: Python ints cost less than two numpy calls
+            for value in flags:
+                if value & _OUT_OF_DOMAIN:
+                    self.counters.samples_out_of_domain += 1
+                if value & _CLAMPED:
+                    self.counters.samples_clamped += 1
         else:
             self.counters.samples_out_of_domain += int(np.count_nonzero(flags & _OUT_OF_DOMAIN))
             self.counters.samples_clamped += int(np.count_nonzero(flags & _CLAMPED))

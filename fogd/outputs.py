@@ -54,7 +54,7 @@ class OutputBatch:
 
     frames: list[Frame]  # as the lexer decoded them, in arrival order
     rate_rows: list[int]  # indices of the frames that carry a rate
-    t_s: np.ndarray  # output time of each rate row
+    t_s: np.ndarray | list[float]  # output time of each rate row
     comp: Compensated  # the compensated axis, per rate row
 
 
@@ -78,13 +78,16 @@ class Formatter:
         self.axis = axis
         self._fogd_protocol = FogdProtocol()
         self._seq = 0
+        self._pieces = getattr(self, f"_{out_format}")
 
     def header(self) -> bytes:
         """What goes to the sink before any frame (the CSV header line)."""
         return (",".join(CSV_COLUMNS) + "\n").encode() if self.out_format == "csv" else b""
 
     def encode(self, batch: OutputBatch) -> Chunk:
-        pieces = getattr(self, f"_{self.out_format}")(batch)
+        pieces = self._pieces(batch)
+        if len(pieces) == 1:
+            return Chunk(pieces[0], [len(pieces[0])])
         ends, total = [], 0
         for piece in pieces:
             total += len(piece)
@@ -93,7 +96,7 @@ class Formatter:
 
     def _same(self, batch: OutputBatch) -> list[bytes]:
         """Every input frame, rate frames re-encoded with the compensated rate and a fresh CRC."""
-        compensated = dict(zip(batch.rate_rows, batch.comp.rate_comp_dph.tolist()))
+        compensated = dict(zip(batch.rate_rows, _values(batch.comp.rate_comp_dph)))
         axis, reencode = self.axis, self.protocol.reencode
         pieces = []
         for index, frame in enumerate(batch.frames):
@@ -112,8 +115,8 @@ class Formatter:
         axis = self.axis
         pieces = []
         columns = zip(
-            batch.t_s.tolist(), [batch.frames[row] for row in batch.rate_rows], comp.temp_c.tolist(),
-            comp.temp_rate_cps.tolist(), comp.comp_dph.tolist(), comp.rate_comp_dph.tolist(), comp.flags.tolist(),
+            _values(batch.t_s), [batch.frames[row] for row in batch.rate_rows], _values(comp.temp_c),
+            _values(comp.temp_rate_cps), _values(comp.comp_dph), _values(comp.rate_comp_dph), _values(comp.flags),
         )  # fmt: skip
         for t_s, rated, temp_c, temp_rate_cps, comp_dph, rate_comp_dph, flags in columns:
             comps = [0.0, 0.0, 0.0]
@@ -132,8 +135,8 @@ class Formatter:
         comp = batch.comp
         axis, frames = self.axis, batch.frames
         return zip(
-            batch.t_s.tolist(), [frames[row].rate_dph[axis] for row in batch.rate_rows], comp.temp_c.tolist(), comp.temp_rate_cps.tolist(),
-            comp.comp_dph.tolist(), comp.rate_comp_dph.tolist(), comp.flags.tolist(),
+            _values(batch.t_s), [frames[row].rate_dph[axis] for row in batch.rate_rows], _values(comp.temp_c),
+            _values(comp.temp_rate_cps), _values(comp.comp_dph), _values(comp.rate_comp_dph), _values(comp.flags),
         )  # fmt: skip
 
     def _csv(self, batch: OutputBatch) -> list[bytes]:
@@ -150,6 +153,11 @@ class Formatter:
             ).encode()
             for t_s, rate, temp, temp_rate, comp, rate_comp, flags in self._rows(batch)
         ]
+
+
+def _values(column: np.ndarray | list) -> list:
+    """A column as Python numbers (the daemon's few-frame batches are lists already)."""
+    return column if isinstance(column, list) else column.tolist()
 
 
 def _json(value: float) -> str:

@@ -26,7 +26,6 @@ from fogd.daemon import RING_CAPACITY, SampleClock, TemperatureHold
 from fogd.errors import DeviceError, describe_os_error
 from fogd.estimator import EstimatorSettings, TempRateEstimator
 from fogd.lexer import Lexer
-from fogd.outputs import rate_rows
 from fogd.protocols.base import Frame
 from fogd.reader import Reader
 from fogd.ring import Ring
@@ -84,11 +83,10 @@ class Recorder:
         self.temp_rate_cps = float("nan")
 
     def write(self, batch: tuple[list[Frame], list[float]]) -> None:
-        frames, t_rx_s = batch
-        rated = [frames[row] for row in rate_rows(frames)]
-        temp_c = np.array(self.temperature.hold(frames, t_rx_s)[0], dtype=np.float64)
-        t_s = np.array(self.clock.times([frame.t_s for frame in rated]), dtype=np.float64)
-        rate_dph = np.array([frame.rate_dph[self.axis] for frame in rated], dtype=np.float64)
+        samples = self.temperature.rate_samples(*batch, self.axis)
+        temp_c = np.array(samples.temp_c, dtype=np.float64)
+        t_s = np.array(self.clock.times(samples.device_s), dtype=np.float64)
+        rate_dph = np.array(samples.rate_dph, dtype=np.float64)
         known = ~np.isnan(temp_c)
         self.skipped_no_temp += int((~known).sum())
         if not known.any():
