@@ -1,30 +1,55 @@
-"""A do-nothing relay: copies bytes from one tty to another as they come, the baseline fogd's latency is
-measured against in tools/bench_daemon.py (same ptys, same harness, no framing, no model).
+"""Baselines for tools/bench_daemon.py on the same ptys: a do-nothing relay that copies bytes from one tty to
+another as they come (no framing, no model), and with --threads the same copy split over two Python threads
+the way fogd splits it (a reader thread polls and reads, hands each read over through a queue, the main thread
+writes): what the hand-over between two threads costs before any work is done.
 
-Usage: python tools/bench_relay.py IN_TTY OUT_TTY  (stops on SIGTERM or when the input closes)
+Usage: python tools/bench_relay.py [--threads] IN_TTY OUT_TTY  (stops on SIGTERM or when the input closes)
 """
 
 from __future__ import annotations
 
 import os
+import queue
+import select
 import signal
 import sys
+import threading
 import tty
 
 
+def write_all(sink: int, data: bytes) -> None:
+    view = memoryview(data)
+    while view:
+        view = view[os.write(sink, view) :]
+
+
 def main(argv: list[str]) -> int:
-    source = os.open(argv[0], os.O_RDONLY | os.O_NOCTTY)
-    sink = os.open(argv[1], os.O_WRONLY | os.O_NOCTTY)
+    threads = argv[:1] == ["--threads"]
+    source_path, sink_path = argv[1:] if threads else argv
+    source = os.open(source_path, os.O_RDONLY | os.O_NOCTTY)
+    sink = os.open(sink_path, os.O_WRONLY | os.O_NOCTTY)
     for fd in (source, sink):
         tty.setraw(fd)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
+    if not threads:
+        while data := os.read(source, 65536):
+            write_all(sink, data)
+        return 0
+    reads: queue.SimpleQueue[bytes] = queue.SimpleQueue()
+
+    def reader() -> None:
+        poller = select.poll()
+        poller.register(source, select.POLLIN)
+        while True:
+            if poller.poll(100):
+                reads.put(os.read(source, 65536))
+
+    threading.Thread(target=reader, daemon=True).start()
     while True:
-        data = os.read(source, 65536)
-        if not data:
-            return 0
-        view = memoryview(data)
-        while view:
-            view = view[os.write(sink, view) :]
+        try:
+            write_all(sink, reads.get(timeout=0.05))
+        except queue.Empty:
+            continue
 
 
 if __name__ == "__main__":
