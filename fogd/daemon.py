@@ -21,6 +21,7 @@ import json
 import logging
 import math
 import os
+import sys
 import threading
 import time
 from collections import deque
@@ -49,6 +50,11 @@ status_log = logging.getLogger("fogd.status")
 RING_CAPACITY = 1 << 15  # samples: 1.6 s at 20 kHz
 MAX_BATCH = 4096  # samples per compensation step, which bounds a chunk's size in the writer's queue
 IDLE_WAIT_S = 0.05
+# How long a thread that wants the GIL waits for the one computing (Python's default is 5 ms): the reader
+# must get it back within the time a pty's or UART's buffer takes to fill at full rate (4 KB at 80,000
+# frames/s is 1.4 ms), or the sender is throttled and frames pile up; between frames at real rates no thread
+# computes, so nothing changes there.
+SWITCH_INTERVAL_S = 0.0005
 DUTIES_S = 0.01  # status, signals, reloads, thread watch, watchdog: checked at most this often
 FLUSH_TIMEOUT_S = 1.5
 RESTART_DELAY_S = 0.5
@@ -232,6 +238,8 @@ class Daemon:
         next_status_s = started_s + self.status_interval_s
         next_notify_s = next_stats_s = next_pet_s = started_s
         pet_every_s = self.notifier.watchdog_interval_s
+        switch_interval_s = sys.getswitchinterval()
+        sys.setswitchinterval(SWITCH_INTERVAL_S)
         self.writer.start(self.formatter.header())
         self.reader.start()
         self.notifier.send("READY=1", f"STATUS={self.short_status()}")
@@ -277,6 +285,7 @@ class Daemon:
             status_log.info("final: %s", self.status_line())
             if self.stats_path is not None:
                 write_stats(self.stats_path, {**self.snapshot(), "running": False})
+            sys.setswitchinterval(switch_interval_s)
 
     def healthy(self, now_s: float) -> bool:
         """Whether the data path works: the reader thread alive and coming round its loop (reading, or
