@@ -69,6 +69,10 @@ class Lexer:
     def feed(self, data: bytes) -> list[Frame]:
         """Every frame completed by `data`, in stream order."""
         frames: list[Frame] = []
+        if len(data) <= self._slice_len:  # the usual read: a frame or a few, no slicing
+            self._buf = self._buf + data if self._buf else bytes(data)
+            self._scan(frames)
+            return frames
         for offset in range(0, len(data), self._slice_len):
             self._buf += data[offset : offset + self._slice_len]
             self._scan(frames)
@@ -111,10 +115,12 @@ class Lexer:
         end = len(buf)
         counters = self.counters
         single = self.protocols[0] if len(self.protocols) == 1 else None
+        find = single.find if single is not None else None
+        account, append = self._account, frames.append
         pos = 0
         while True:
-            if single is not None:
-                protocol, start = single, single.find(buf, pos)
+            if find is not None:
+                protocol, start = single, find(buf, pos)
             else:
                 start, protocol = self._next_candidate(buf, pos)
             if start < 0:
@@ -144,12 +150,13 @@ class Lexer:
                 counters.garbage_bytes += start + skip - pos
                 pos = start + skip
                 continue
-            counters.garbage_bytes += start - pos
+            if start != pos:
+                counters.garbage_bytes += start - pos
             counters.frame_bytes += length
             pos = start + length
-            frames.append(frame)
-            self._account(frame, protocol)
-        self._buf = buf[pos:]
+            append(frame)
+            account(frame, protocol)
+        self._buf = buf[pos:] if pos else buf
 
     def _account(self, frame: Frame, protocol: Protocol) -> None:
         counters = self.counters

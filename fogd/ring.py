@@ -17,6 +17,7 @@ from collections import deque
 from fogd.protocols.base import Frame
 
 KIND_NAMES = ("imu", "rate", "temp", "other")  # how the reader counts frames in ('comp' frames are 'other')
+COUNTED_KINDS = frozenset(KIND_NAMES[:3])  # counted under their own kind; the rest under 'other'
 RATE_KINDS = frozenset(("imu", "rate"))  # frames carrying a gyro rate the daemon compensates
 TEMP_KINDS = frozenset(("imu", "temp"))  # frames whose temperature the daemon holds
 
@@ -24,7 +25,7 @@ TEMP_KINDS = frozenset(("imu", "temp"))  # frames whose temperature the daemon h
 def kind_name(frame: Frame) -> str:
     """The reader's count a frame goes in: fogd does not re-compensate its own output, so 'comp' is 'other'."""
     kind = frame.kind
-    return kind if kind in ("imu", "rate", "temp") else "other"
+    return kind if kind in COUNTED_KINDS else "other"
 
 
 def mask(bits: int) -> tuple[bool, bool, bool]:
