@@ -17,6 +17,7 @@ thread is alive and coming round its loop: a hung reader stops the pings and sys
 
 from __future__ import annotations
 
+import gc
 import json
 import logging
 import math
@@ -47,8 +48,8 @@ from fogd.statsfile import write_stats
 log = logging.getLogger("fogd.daemon")
 status_log = logging.getLogger("fogd.status")
 
-RING_CAPACITY = 1 << 15  # samples: 1.6 s at 20 kHz
-MAX_BATCH = 4096  # samples per compensation step, which bounds a chunk's size in the writer's queue
+RING_CAPACITY = 1 << 14  # frames: 0.8 s at 20 kHz, 3.3 s at a 1775's 5 kHz (about 400 bytes each as Python objects)
+MAX_BATCH = 1024  # samples per compensation step, which bounds a chunk's size in the writer's queue
 IDLE_WAIT_S = 0.05
 # How long a thread that wants the GIL waits for the one computing (Python's default is 5 ms): the reader
 # must get it back within the time a pty's or UART's buffer takes to fill at full rate (4 KB at 80,000
@@ -240,6 +241,9 @@ class Daemon:
         pet_every_s = self.notifier.watchdog_interval_s
         switch_interval_s = sys.getswitchinterval()
         sys.setswitchinterval(SWITCH_INTERVAL_S)
+        # What is loaded by now (modules, model, buffers) lives as long as the daemon: out of the collector's
+        # sight, a full collection does not walk it (tens of ms, a latency spike) while frames flow.
+        gc.freeze()
         self.writer.start(self.formatter.header())
         self.reader.start()
         self.notifier.send("READY=1", f"STATUS={self.short_status()}")
@@ -286,6 +290,7 @@ class Daemon:
             if self.stats_path is not None:
                 write_stats(self.stats_path, {**self.snapshot(), "running": False})
             sys.setswitchinterval(switch_interval_s)
+            gc.unfreeze()
 
     def healthy(self, now_s: float) -> bool:
         """Whether the data path works: the reader thread alive and coming round its loop (reading, or

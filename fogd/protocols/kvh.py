@@ -105,6 +105,8 @@ class KvhProtocol(Protocol):
     def _rates(self, x: float, y: float, z: float, status: int) -> tuple[Axes3, Mask3]:
         isfinite = math.isfinite
         scale = self.dph_per_unit
+        if status & 7 == 7 and isfinite(x) and isfinite(y) and isfinite(z):
+            return (x * scale, y * scale, z * scale), ALL_AXES  # the usual frame: one shared tuple, not a new one
         valid = (bool(status & 1) and isfinite(x), bool(status & 2) and isfinite(y), bool(status & 4) and isfinite(z))
         return (x * scale, y * scale, z * scale), valid
 
