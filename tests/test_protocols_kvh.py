@@ -65,6 +65,15 @@ def test_crc32_mpeg2_matches_bitwise_reference(data):
     assert crc32_mpeg2_ok(data + struct.pack(">I", crc32_mpeg2_bitwise(data)))
 
 
+@given(st.binary(min_size=1, max_size=64), st.data())
+def test_any_single_bit_flip_fails_the_fast_crc_check(data, draw):
+    frame = bytearray(data + struct.pack(">I", crc32_mpeg2_bitwise(data)))
+    bit = draw.draw(st.integers(0, 8 * len(frame) - 1))
+    frame[bit // 8] ^= 1 << (bit % 8)
+    assert not crc32_mpeg2_ok(bytes(frame))
+    assert crc32_mpeg2(bytes(frame[:-4])) != int.from_bytes(frame[-4:], "big")
+
+
 @pytest.mark.parametrize(("raw", "gyro_rad_s", "seq", "temp_c", "crc"), VECTORS)
 def test_real_vectors_decode_to_documented_values(raw, gyro_rad_s, seq, temp_c, crc):
     assert len(raw) == 36
