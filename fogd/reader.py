@@ -3,8 +3,8 @@ samples into the ring. It never evaluates the model and never waits for the writ
 
 Each read waits (poll) up to the port's read timeout for bytes, then takes everything that has arrived in
 one `os.read`: a whole frame (or several) per read and per lexer call, not one byte and then the rest
-(pyserial's `read(in_waiting or 1)` idiom costs two wake-ups, two reads and two lexer calls per frame). When the port disappears (a USB unplug:
-pyserial raises "device reports readiness to read but returned no data") the reader logs it once, drops the
+(pyserial's `read(in_waiting or 1)` costs two wake-ups, two reads and two lexer calls per frame). When the
+port disappears (a USB unplug: readable with no data, an error or a hang-up) the reader logs it once, drops the
 half-received frame, and reopens the same path until it comes back, so a device that returns behind the same
 symlink is picked up too. It looks for the path every `PRESENCE_POLL_S` (a stat costs nothing) and opens it as
 soon as it appears; opens that fail while the path exists (busy, permission) back off exponentially up to
