@@ -18,13 +18,12 @@ import pytest
 
 from fogd import modelfile
 from fogd.cli import replay
-from fogd.estimator import EstimatorSettings
-from fogd.inputs import default_inputs
 from fogd.lexer import Lexer
 from fogd.protocols import get
 from fogd.protocols.base import ALL_AXES, Z_ONLY, Frame
 from fogd.protocols.kvh import DPH_PER_RAD_S
 from fogd.runio import RUN_COLUMNS
+from test_hardening import model_document
 
 RATE_HZ = 1000.0
 SAMPLES = 3000
@@ -36,14 +35,7 @@ OUT_COLUMNS = ("t_s", "rate_dph", "temp_c", "temp_rate_cps", "comp_dph", "rate_c
 def model_path(tmp_path_factory) -> Path:
     """comp = 0.5 + 0.05 T + 30 dT/dt deg/h, with a 0.5 s eq. 16 window so a short run warms up."""
     path = tmp_path_factory.mktemp("model") / "model.json"
-    doc = modelfile.document(
-        name="e2e-linear", method="linear", inputs=default_inputs(EstimatorSettings(window_s=0.5, average_s=0.05)),
-        x_mean=np.zeros(2), x_scale=np.ones(2), y_mean=0.0, y_scale=1.0,
-        domain_min=np.array([-40.0, -5.0]), domain_max=np.array([80.0, 5.0]),
-        params={"coef": [0.05, 30.0], "intercept": 0.5}, reference_dph=0.0, training={}, metrics={},
-        created_utc="2024-01-01T00:00:00Z",
-    )  # fmt: skip
-    modelfile.save(path, doc)
+    modelfile.save(path, model_document(name="e2e-linear"))
     return path
 
 

@@ -5,11 +5,12 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 
 import numpy as np
 import pytest
 
-from fogd.runio import read_run
+from fogd.runio import Run, read_run
 from test_daemon_e2e import RATE_HZ, Emu, run_samples, wait_for_rows, write_run
 
 RECORD = [sys.executable, "-m", "fogd.cli.record"]
@@ -33,23 +34,28 @@ def stop(process: subprocess.Popen) -> int:
     return process.wait(5)
 
 
-@pytest.mark.parametrize("protocol", ["kvh-a", "fogd"])
-def test_record_writes_the_emulators_values(tmp_path, protocol):
-    samples = run_samples(protocol)
+def record_emulated(tmp_path, samples: dict, protocol: str, rows: Callable[[list], int], *options: str) -> Run:
+    """`samples` streamed by fogd-emu and recorded by fogd-record until `rows(ledger)` rows are in rec.csv."""
     run_csv = tmp_path / "run.csv"
     write_run(run_csv, samples)
     emu = Emu(tmp_path, run_csv, protocol)
-    process, stderr = record(tmp_path, emu.path, "--protocol", protocol)
+    process, stderr = record(tmp_path, emu.path, "--protocol", protocol, *options)
     try:
         ledger = emu.finish()
-        wait_for_rows(tmp_path / "rec.csv", len(sent_valid(ledger)) + 1)
+        wait_for_rows(tmp_path / "rec.csv", rows(ledger) + 1)
         assert stop(process) == 0
     finally:
         emu.kill()
         if process.poll() is None:
             process.kill()
         stderr.close()
-    recorded = read_run(tmp_path / "rec.csv")
+    return read_run(tmp_path / "rec.csv")
+
+
+@pytest.mark.parametrize("protocol", ["kvh-a", "fogd"])
+def test_record_writes_the_emulators_values(tmp_path, protocol):
+    samples = run_samples(protocol)
+    recorded = record_emulated(tmp_path, samples, protocol, lambda ledger: len(sent_valid(ledger)))
     assert recorded.rows == len(samples["t_s"])
     np.testing.assert_array_equal(recorded.rate_dph, samples["rate_dph"])
     np.testing.assert_array_equal(recorded.temp_c, samples["temp_c"])
@@ -59,21 +65,8 @@ def test_record_writes_the_emulators_values(tmp_path, protocol):
 
 def test_record_decimate_writes_the_means_of_groups(tmp_path):
     samples = run_samples("fogd")
-    run_csv = tmp_path / "run.csv"
-    write_run(run_csv, samples)
-    emu = Emu(tmp_path, run_csv, "fogd")
-    process, stderr = record(tmp_path, emu.path, "--protocol", "fogd", "--decimate", "4")
     groups = len(samples["t_s"]) // 4
-    try:
-        emu.finish()
-        wait_for_rows(tmp_path / "rec.csv", groups + 1)
-        assert stop(process) == 0
-    finally:
-        emu.kill()
-        if process.poll() is None:
-            process.kill()
-        stderr.close()
-    recorded = read_run(tmp_path / "rec.csv")
+    recorded = record_emulated(tmp_path, samples, "fogd", lambda ledger: groups, "--decimate", "4")
     assert recorded.rows == groups
     whole = groups * 4
     for column in ("t_s", "rate_dph", "temp_c"):
