@@ -84,7 +84,7 @@ class Fogd:
             assert time.monotonic() < deadline, f"fogd never said {text!r}: {self.stderr}"
             time.sleep(0.02)
 
-    def terminate(self, timeout_s: float = 2.0) -> tuple[int, float]:
+    def terminate(self, timeout_s: float = 10.0) -> tuple[int, float]:
         started = time.monotonic()
         self.process.send_signal(signal.SIGTERM)
         status = self.process.wait(timeout_s)
@@ -136,7 +136,7 @@ def start_fogd(tmp_path: Path, port: str, model: Path, *args: str) -> Fogd:
     return fogd
 
 
-def wait_for_rows(path: Path, rows: int, timeout_s: float = 15.0) -> None:
+def wait_for_rows(path: Path, rows: int, timeout_s: float = 30.0) -> None:
     deadline = time.monotonic() + timeout_s
     newline = b"\n"
     while not path.exists() or path.read_bytes().count(newline) < rows:
@@ -214,7 +214,7 @@ def stream_through_fogd(tmp_path: Path, model: Path, samples: dict, protocol: st
 def test_recorded_run_through_emulator_and_fogd_equals_replay(tmp_path, model_path, protocol):
     samples = run_samples(protocol)
     out, fogd, took_s = stream_through_fogd(tmp_path, model_path, samples, protocol)
-    assert took_s < 2.0, fogd.stderr
+    assert took_s < 4.0, fogd.stderr  # prompt, and short of the 5 s write timeout a stuck exit would wait for
     assert out.read_text().splitlines()[0] == ",".join(OUT_COLUMNS)
     assert_same_as_replay(np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2), replayed(tmp_path, model_path, samples))
     counters = fogd.counters()
@@ -372,7 +372,7 @@ def test_sigterm_while_streaming_exits_zero_with_whole_rows_flushed(tmp_path, gy
         status, took_s = fogd.terminate()
     finally:
         fogd.kill()
-    assert status == 0 and took_s < 2.0
+    assert status == 0 and took_s < 4.0  # prompt, and short of the 5 s write timeout
     text = out.read_text()
     assert text.endswith("\n")
     assert text.count("\n") - 1 == fogd.counters()["writer"]["frames_written"]
