@@ -279,3 +279,13 @@ def test_a_fitted_polynomial_that_extrapolates_wildly_is_refused_in_one_line() -
                          fit=FitOptions(progress=False))  # fmt: skip
     with pytest.raises(InputError, match=r"ls-poly model reaches .* deg/h within its calibrated input range.*--degree"):
         train(runs, config)
+
+
+def test_the_coil_trend_without_a_temperature_input_is_the_linear_trend() -> None:
+    """--inputs rate@50 with the default coil trend: no temperature to mix, so the trend is linear (it raised
+    a numpy error from an empty mix before)."""
+    x, y, groups = chamber_rows(90, seed=4, runs=3)
+    options = FitOptions(particles=4, iterations=2, trend="coil", temperature_columns=(), static_columns=(),
+                         progress=False)  # fmt: skip
+    fitted = fit("pso-svr", x[:, 1:], y, groups, options)
+    assert fitted.hyperparameters["trend"] == "linear" and "trend_powers" not in fitted.params

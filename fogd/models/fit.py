@@ -144,8 +144,8 @@ def fit(method: str, X: np.ndarray, y: np.ndarray, groups: np.ndarray, options: 
 def trend_terms(xs: np.ndarray, ys: np.ndarray, groups: np.ndarray, options: FitOptions) -> np.ndarray | CoilTerms | None:
     """The pso-svr trend's terms of the scaled rows: the "coil" trend's mix (fitted once, here, then fixed for
     every fold and particle), the "poly" trend's monomials (every input linear, the static columns up to
-    `trend_degree`), or None (linear)."""
-    if options.trend == "coil":
+    `trend_degree`), or None (linear; also the coil trend's when no input is a temperature)."""
+    if options.trend == "coil" and options.temperature_columns:
         return fit_mix(xs, ys, groups, options.temperature_columns, options.trend_degree)
     if options.trend == "poly":
         return temperature_powers(xs.shape[1], options.trend_degree, options.static_columns)
