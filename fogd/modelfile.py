@@ -157,7 +157,7 @@ def printable(text: str) -> str:
     return text if text.isprintable() else text.encode("unicode_escape").decode("ascii")
 
 
-def _control_characters(value: Any, where: str, check: "_Checker", depth: int = 0) -> None:
+def _control_characters(value: Any, where: str, check: "_Checker") -> None:
     """Refuse a control character (newline, ESC, ...) in any string of the document: names and notes end up
     in log lines and systemd's STATUS= field, where a newline forges a line or a field."""
     if isinstance(value, str):
@@ -165,11 +165,12 @@ def _control_characters(value: Any, where: str, check: "_Checker", depth: int = 
             check.fail(where, f"holds a control character ({printable(value)[:40]!r}); names and notes must be printable")
     elif isinstance(value, dict):
         for key, item in value.items():
-            _control_characters(key, f"{where}.{printable(key)[:40]}" if where else printable(key)[:40], check, depth + 1)
-            _control_characters(item, f"{where}.{printable(key)[:40]}" if where else printable(key)[:40], check, depth + 1)
+            child = f"{where}.{printable(key)[:40]}" if where else printable(key)[:40]
+            _control_characters(key, child, check)
+            _control_characters(item, child, check)
     elif isinstance(value, list):
         for i, item in enumerate(value):
-            _control_characters(item, f"{where}[{i}]", check, depth + 1)
+            _control_characters(item, f"{where}[{i}]", check)
 
 
 MAX_COMP_DPH = 1e6  # a thermal error beyond this (277 deg/s) is no FOG's: a corrupt or hostile model

@@ -27,6 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fogd.models.folds import centred_within_runs
+
 MIX_FLOOR = 1e-3  # mix weights below this are dropped (and the rest renormalised): fewer monomials to serve
 _MAX_EVALUATIONS = 400
 
@@ -68,14 +70,6 @@ class CoilTerms:
         return np.array(rows, dtype=np.int64), np.array(values, dtype=np.float64)
 
 
-def _centred_within_runs(values: np.ndarray, groups: np.ndarray) -> np.ndarray:
-    out = np.array(values, dtype=np.float64, copy=True)
-    for group in np.unique(groups):
-        rows = groups == group
-        out[rows] -= out[rows].mean(axis=0)
-    return out
-
-
 def fit_mix(xs: np.ndarray, ys: np.ndarray, groups: np.ndarray | None, candidates: tuple[int, ...],
             degree: int = 3) -> CoilTerms:  # fmt: skip
     """The coil-temperature mix over the `candidates` columns (the temperature inputs) that makes the trend fit
@@ -84,8 +78,7 @@ def fit_mix(xs: np.ndarray, ys: np.ndarray, groups: np.ndarray | None, candidate
     from scipy.optimize import least_squares  # calibration only: the daemon never imports scipy
 
     xs = np.asarray(xs, dtype=np.float64)
-    groups = np.zeros(len(ys), dtype=np.int64) if groups is None else np.asarray(groups)
-    centred_y = _centred_within_runs(ys, groups)
+    centred_y = centred_within_runs(ys, groups)
     candidates = tuple(candidates)
 
     def terms(logits: np.ndarray) -> CoilTerms:
@@ -95,7 +88,7 @@ def fit_mix(xs: np.ndarray, ys: np.ndarray, groups: np.ndarray | None, candidate
         return CoilTerms(mix, degree)
 
     def residual(logits: np.ndarray) -> np.ndarray:
-        features = _centred_within_runs(terms(logits)(xs), groups)
+        features = centred_within_runs(terms(logits)(xs), groups)
         return centred_y - features @ np.linalg.lstsq(features, centred_y, rcond=None)[0]
 
     if len(candidates) == 1:

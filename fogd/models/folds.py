@@ -73,14 +73,19 @@ def run_levels(train_residual: np.ndarray, train_groups: np.ndarray | None, test
     return levels
 
 
-def drift_rmse(residual: np.ndarray, groups: np.ndarray | None) -> float:
-    """RMSE of residuals about each run's own mean residual."""
-    residual = np.asarray(residual, dtype=np.float64).copy()
-    groups = np.zeros(residual.size, dtype=np.int64) if groups is None else np.asarray(groups)
+def centred_within_runs(values: np.ndarray, groups: np.ndarray | None) -> np.ndarray:
+    """A copy of `values` (rows, or rows x columns) with each run's own mean taken off (one run when None)."""
+    out = np.array(values, dtype=np.float64, copy=True)
+    groups = np.zeros(len(out), dtype=np.int64) if groups is None else np.asarray(groups)
     for group in np.unique(groups):
         rows = groups == group
-        residual[rows] -= residual[rows].mean()
-    return float(np.sqrt(np.mean(residual**2)))
+        out[rows] -= out[rows].mean(axis=0)
+    return out
+
+
+def drift_rmse(residual: np.ndarray, groups: np.ndarray | None) -> float:
+    """RMSE of residuals about each run's own mean residual."""
+    return float(np.sqrt(np.mean(centred_within_runs(residual, groups) ** 2)))
 
 
 Clamp = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (test rows, training rows) -> test rows as served

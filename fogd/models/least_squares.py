@@ -21,6 +21,7 @@ from sklearn.preprocessing import PolynomialFeatures
 
 from fogd.frozen import monomials
 from fogd.models.coil import CoilTerms
+from fogd.models.folds import centred_within_runs
 from fogd.models.method import MethodFit
 
 
@@ -65,12 +66,7 @@ class RunOffsetLeastSquares(RegressorMixin, BaseEstimator):
 
     def fit(self, xs: np.ndarray, ys: np.ndarray, groups: np.ndarray | None = None) -> "RunOffsetLeastSquares":
         features = self.features(xs)
-        groups = np.zeros(len(ys), dtype=np.int64) if groups is None else np.asarray(groups)
-        centred_x, centred_y = features.copy(), np.asarray(ys, dtype=np.float64).copy()
-        for group in np.unique(groups):
-            rows = groups == group
-            centred_x[rows] -= features[rows].mean(axis=0)
-            centred_y[rows] -= centred_y[rows].mean()
+        centred_x, centred_y = centred_within_runs(features, groups), centred_within_runs(ys, groups)
         self.coef_ = np.linalg.lstsq(centred_x, centred_y, rcond=None)[0]
         self.intercept_ = float(np.mean(ys) - features.mean(axis=0) @ self.coef_)
         return self

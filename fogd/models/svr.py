@@ -32,7 +32,7 @@ from sklearn.svm import SVR
 
 from fogd.errors import InputError
 from fogd.models.coil import CoilTerms
-from fogd.models.folds import Clamp, Split, drift_rmse, run_levels
+from fogd.models.folds import Clamp, Split, centred_within_runs, drift_rmse, run_levels
 from fogd.models.least_squares import RunOffsetLeastSquares
 from fogd.models.method import MethodFit
 from fogd.models.pso import pso_minimize
@@ -77,8 +77,7 @@ class TrendSvr(RegressorMixin, BaseEstimator):
             self.trend_ = RunOffsetLeastSquares(self.trend_powers).fit(xs, ys, groups)
             target = target - self.trend_.predict(xs)
             if groups is not None:  # what the trend leaves, about each run's own offset
-                offsets = {group: target[groups == group].mean() for group in np.unique(groups)}
-                target = target - np.array([offsets[group] for group in groups]) + target.mean()
+                target = centred_within_runs(target, groups) + target.mean()
         self.svr_ = SVR(
             kernel="rbf", C=self.C, epsilon=self.epsilon, gamma=0.5 / self.sigma**2, cache_size=_CACHE_MB,
             max_iter=self.max_iter,
@@ -138,6 +137,7 @@ def fit_pso_svr(
 ) -> MethodFit:
     """Search C, epsilon, sigma with the swarm, then fit the SVR on every row with the best of them."""
     coil = trend_powers if isinstance(trend_powers, CoilTerms) else None
+    trend_label = "none" if not trend else "linear" if trend_powers is None else "coil" if coil else "poly"
     rows = np.arange(len(ys))
     fitness_splits = [(rows, rows)] if fitness == "train" else splits
     lower = LOG10_LOWER.copy()
@@ -179,9 +179,8 @@ def fit_pso_svr(
         "epsilon_dph": epsilon * y_scale,
         "sigma": sigma,
         "gamma": float(model.svr_.gamma),
-        "trend": "none" if not trend else "linear" if trend_powers is None else "poly",
+        "trend": trend_label,
     }
     if coil is not None:
-        hyperparameters["trend"] = "coil"
         hyperparameters["coil_mix"] = coil.mix.tolist()
     return MethodFit(model, params, hyperparameters, result.history)
