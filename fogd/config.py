@@ -286,8 +286,13 @@ def check(settings: dict[str, Any], *, demo: bool) -> None:
         ) from None
 
 
+def instance_stats_path(instance: str) -> str:
+    """Where a daemon named `instance` writes its stats by default: <runtime dir>/<instance>.json."""
+    return os.path.join(RUNTIME_DIR, f"{instance}.json")
+
+
 def stats_path(setting: str | None, instance: str) -> str | None:
     """The stats file to write: the setting, or for 'auto' <runtime dir>/<instance>.json if that dir exists."""
     if setting != "auto":
         return setting
-    return os.path.join(RUNTIME_DIR, f"{instance}.json") if os.path.isdir(RUNTIME_DIR) else None
+    return instance_stats_path(instance) if os.path.isdir(RUNTIME_DIR) else None

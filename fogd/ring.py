@@ -28,11 +28,6 @@ def kind_name(frame: Frame) -> str:
     return kind if kind in COUNTED_KINDS else "other"
 
 
-def mask(bits: int) -> tuple[bool, bool, bool]:
-    """An axis bit mask as the (x, y, z) booleans `Frame` uses."""
-    return (bool(bits & 1), bool(bits & 2), bool(bits & 4))
-
-
 class Ring:
     """Single-producer, single-consumer ring of frame batches holding at most `capacity` frames."""
 

@@ -55,9 +55,9 @@ def write_stats(path: str, snapshot: dict[str, Any]) -> bool:
 def default_path(setting: str | None, instance: str) -> str:
     """The stats file `fogd --status` and `fogd-top` read: the stats_file setting, or for 'auto' (and 'none')
     <runtime dir>/<instance>.json, where a service's daemon writes it."""
-    from fogd.config import RUNTIME_DIR
+    from fogd.config import instance_stats_path
 
-    return setting if setting not in ("auto", None) else os.path.join(RUNTIME_DIR, f"{instance}.json")
+    return setting if setting not in ("auto", None) else instance_stats_path(instance)
 
 
 def read_stats(path: str) -> dict[str, Any]:
