@@ -168,14 +168,14 @@ def body(argv: Sequence[str] | None) -> int:
         label = f"auto: {best.label}"
         trained: dict[str, Trained] = {label: best.trained}
         chosen = best.trained
+        folds = "leave-one-run-out" if len(runs) >= MIN_RUNS_LEFT_OUT else f"{args.folds} blocked time folds of every run"
         chosen.document["training"]["selection"] = {
-            "folds": "leave-one-run-out" if len(runs) >= MIN_RUNS_LEFT_OUT else f"{args.folds} blocked time folds of every run",
+            "folds": folds,
             "chosen": best.row(),
             "candidates": [candidate.row() for candidate in candidates],
         }
         selection = table_lines(candidates, best, markdown=True)
-        print(f"\nModel selection (--method auto): nested held-out RMSE of each candidate, "
-              f"{'leave-one-run-out' if len(runs) >= MIN_RUNS_LEFT_OUT else f'{args.folds} blocked time folds of every run'}")
+        print(f"\nModel selection (--method auto): nested held-out RMSE of each candidate, {folds}")
         print("\n".join(table_lines(candidates, best)))
         print(f"chosen: {best.label} (nested held-out RMSE {best.held_out_rmse_dph:.3e} deg/h)")
         held_out_dph = best.held_out_rmse_dph
