@@ -25,14 +25,20 @@ class ErrorStats:
     def about_run_means(cls, errors_dph: np.ndarray, runs: np.ndarray) -> "ErrorStats":
         """Statistics of the errors about each run's own mean: the drift, without the run-to-run turn-on bias
         that no temperature model predicts (table 3 on several runs, as table 4 is on one)."""
-        errors_dph = np.asarray(errors_dph, dtype=np.float64).copy()
-        runs = np.asarray(runs)
-        for run in np.unique(runs):
-            errors_dph[runs == run] -= errors_dph[runs == run].mean()
-        return cls.of(errors_dph)
+        return cls.of(centred_within_runs(errors_dph, runs))
 
     def to_dict(self) -> dict[str, float]:
         return {"rmse_dph": self.rmse_dph, "max_dph": self.max_dph}
+
+
+def centred_within_runs(values: np.ndarray, runs: np.ndarray | None) -> np.ndarray:
+    """A copy of `values` (rows, or rows x columns) with each run's own mean taken off (one run when None)."""
+    out = np.array(values, dtype=np.float64, copy=True)
+    runs = np.zeros(len(out), dtype=np.int64) if runs is None else np.asarray(runs)
+    for run in np.unique(runs):
+        rows = runs == run
+        out[rows] -= out[rows].mean(axis=0)
+    return out
 
 
 def block_means(values: np.ndarray, use: np.ndarray, block_n: int) -> tuple[np.ndarray, np.ndarray]:

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fogd.models.folds import centred_within_runs
+from fogd.metrics import centred_within_runs
 
 MIX_FLOOR = 1e-3  # mix weights below this are dropped (and the rest renormalised): fewer monomials to serve
 _MAX_EVALUATIONS = 400

@@ -20,6 +20,7 @@ import numpy as np
 from sklearn.base import clone
 
 from fogd.errors import InputError
+from fogd.metrics import centred_within_runs
 
 Split = tuple[np.ndarray, np.ndarray]
 
@@ -71,16 +72,6 @@ def run_levels(train_residual: np.ndarray, train_groups: np.ndarray | None, test
         if trained.any():
             levels[test_groups == run] = train_residual[trained].mean()
     return levels
-
-
-def centred_within_runs(values: np.ndarray, groups: np.ndarray | None) -> np.ndarray:
-    """A copy of `values` (rows, or rows x columns) with each run's own mean taken off (one run when None)."""
-    out = np.array(values, dtype=np.float64, copy=True)
-    groups = np.zeros(len(out), dtype=np.int64) if groups is None else np.asarray(groups)
-    for group in np.unique(groups):
-        rows = groups == group
-        out[rows] -= out[rows].mean(axis=0)
-    return out
 
 
 def drift_rmse(residual: np.ndarray, groups: np.ndarray | None) -> float:

@@ -20,8 +20,8 @@ from sklearn.base import BaseEstimator, RegressorMixin
 from sklearn.preprocessing import PolynomialFeatures
 
 from fogd.frozen import monomials
+from fogd.metrics import centred_within_runs
 from fogd.models.coil import CoilTerms
-from fogd.models.folds import centred_within_runs
 from fogd.models.method import MethodFit
 
 

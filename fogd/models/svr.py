@@ -31,8 +31,9 @@ from sklearn.exceptions import ConvergenceWarning
 from sklearn.svm import SVR
 
 from fogd.errors import InputError
+from fogd.metrics import centred_within_runs
 from fogd.models.coil import CoilTerms
-from fogd.models.folds import Clamp, Split, centred_within_runs, drift_rmse, run_levels
+from fogd.models.folds import Clamp, Split, drift_rmse, run_levels
 from fogd.models.least_squares import RunOffsetLeastSquares
 from fogd.models.method import MethodFit
 from fogd.models.pso import pso_minimize
