@@ -174,8 +174,8 @@ STATIC_MAX_TAU_S = 1000.0  # temperatures that follow the coil: the sensor's and
 # hardly move within a run and, with one offset per run, are nearly free (an exploratory least-squares check,
 # not in tools/: held-out drift 1.6-3.9x the noise floor against 1.2-1.8x with paper-train and cooling as the
 # only calibration runs). The sensor's own temperature carries what no lag has: the housing's latest move,
-# which the coil's rate and gradient follow at once. Without it, a ramp four times faster than calibration
-# left 3.1x the floor on the diffusive coil, with it 1.5x (fogd-train's pipeline, 20 x 20 swarm, coil trend).
+# which the coil's rate and gradient follow at once (tools/accuracy_table.py --quick, diffusive coil, fine
+# sensor, fast-ramp: 3.10x the floor with the previous default, lags only under the poly trend; 1.37x now).
 DEFAULT_INPUTS_TEXT = "temp,lags@30..3000/5"
 
 

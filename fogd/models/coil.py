@@ -12,10 +12,10 @@ variable projection (for a given v the rest is linear least squares with one off
 fixed, so every fold and every swarm particle refits only the linear part.
 
 Fitting powers of every lagged temperature on their own (the "poly" trend) lets differences of cubes of
-nearby lags stand in for the coil's rate on calibration ramps, which extrapolates badly to faster ones:
-held-out drift on a ramp four times faster than calibration was 1.6-3.2x the noise floor with "poly" and
-1.35-1.55x with this trend (an exploratory least-squares check on tools/accuracy_table.py's runs, fine
-sensor, both coil structures). Frozen, the trend is an ordinary polynomial (`monomial_form`), so the model
+nearby lags stand in for the coil's rate on calibration ramps, which extrapolates badly to faster ones
+(tools/accuracy_table.py --quick, fine sensor, worst held-out run: 1.58x the noise floor on the lumped coil
+and 3.15x on the diffusive one with the previous default, "poly" over the lags alone; 1.52x and 1.48x with
+this trend over temp and the lags). Frozen, the trend is an ordinary polynomial (`monomial_form`), so the model
 file and the daemon's evaluator do not change.
 """
 
