@@ -5,7 +5,13 @@ import warnings
 import numpy as np
 import pytest
 
-from fogd.allan import allan_deviation, analyse, octave_taus, plot, summary_lines
+from fogd.calibration.allan import (
+    allan_deviation,
+    analyse,
+    octave_taus,
+    plot,
+    summary_lines,
+)
 
 
 @pytest.mark.parametrize("seed, rate_hz, arw_dpsh", [(1, 100.0, 0.005), (2, 200.0, 0.002), (3, 10.0, 0.05)])

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fogd import modelfile
-from fogd.runio import read_run
+from fogd.core import modelfile
+from fogd.core.runio import read_run
 
 QUICK_PSO = ["--particles", "4", "--iterations", "2", "-q"]
 

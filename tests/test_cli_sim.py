@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fogd import profiles
 from fogd.cli.sim import main
-from fogd.runio import read_run
-from fogd.simulator import NOISE_PRESETS, params_for, simulate
+from fogd.core.runio import read_run
+from fogd.simulation import profiles
+from fogd.simulation.simulator import NOISE_PRESETS, params_for, simulate
 
 SHORT_YAML = "- [120, 20]\n- [600, 26]\n- [120, 26]\n"
 COMMAND = [sys.executable, "-c", "import sys; from fogd.cli.sim import main; sys.exit(main())"]

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from fogd import modelfile
-from fogd.inputs import describe_inputs
+from fogd.core import modelfile
+from fogd.core.inputs import describe_inputs
 
 
 def command(module: str, *args) -> subprocess.CompletedProcess:

@@ -7,8 +7,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fogd.frozen import monomials
-from fogd.models.coil import MIX_FLOOR, CoilTerms, fit_mix
+from fogd.calibration.models.coil import MIX_FLOOR, CoilTerms, fit_mix
+from fogd.core.frozen import monomials
 
 unit = st.floats(0.0, 1.0, allow_nan=False)
 

@@ -4,11 +4,11 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fogd.compensator import Compensator
-from fogd.estimator import EstimatorSettings, temp_rate_batch
-from fogd.flags import Flag
-from fogd.frozen import FrozenModel, Linear
-from fogd.inputs import default_inputs
+from fogd.core.compensator import Compensator
+from fogd.core.estimator import EstimatorSettings, temp_rate_batch
+from fogd.core.flags import Flag
+from fogd.core.frozen import FrozenModel, Linear
+from fogd.core.inputs import default_inputs
 
 RATE_HZ = 10.0
 ESTIMATOR = EstimatorSettings(window_s=5.0, average_s=0.5)

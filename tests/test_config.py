@@ -1,4 +1,4 @@
-"""fogd.config: every bad key, type, range and a missing model is one line naming the key (exit 78 from the
+"""fogd.serving.config: every bad key, type, range and a missing model is one line naming the key (exit 78 from the
 real process); the shipped config/fogd.yaml loads and documents every key; the default config directory is
 read when --config is not given."""
 
@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from fogd import config
 from fogd.errors import ConfigError
+from fogd.serving import config
 
 ROOT = Path(__file__).resolve().parent.parent
 FOGD = [sys.executable, "-m", "fogd.cli.daemon"]

@@ -15,15 +15,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_hardening import model_document
 
-from fogd import modelfile
 from fogd.cli import replay
-from fogd.lexer import Lexer
+from fogd.core import modelfile
+from fogd.core.columns import RUN_COLUMNS
 from fogd.protocols import get
 from fogd.protocols.base import ALL_AXES, Z_ONLY, Frame
 from fogd.protocols.kvh import DPH_PER_RAD_S
-from fogd.runio import RUN_COLUMNS
-from test_hardening import model_document
+from fogd.protocols.lexer import Lexer
 
 RATE_HZ = 1000.0
 SAMPLES = 3000
@@ -455,7 +455,7 @@ def kvh_run_through_fogd_equals_replay(tmp_path: Path, model: Path, seed: int) -
 def test_multi_scale_guarded_model_through_fogd_equals_replay(tmp_path):
     """A kernel model on temperature, two eq. 16 windows and a lagged temperature, with a joint-space domain
     guard (part of the run is OUT_OF_DOMAIN and uses the linear fallback): the daemon equals replay."""
-    from fogd.inputs import parse_inputs
+    from fogd.core.inputs import parse_inputs
 
     inputs = parse_inputs("temp,rate@0.5,rate@1.5,lag@0.8", average_s=0.05)
     model = tmp_path / "multi.json"
@@ -478,7 +478,7 @@ def test_multi_scale_guarded_model_through_fogd_equals_replay(tmp_path):
 def lag_bank_model_file(tmp_path: Path) -> Path:
     """A model like fogd-train's default (an SVR on a polynomial trend over a bank of lags, version 2), its
     calibrated domain ending at 22 C so that a run past it is clamped."""
-    from fogd.inputs import parse_inputs
+    from fogd.core.inputs import parse_inputs
 
     inputs = parse_inputs("lags@0.3,1,3,10")
     powers = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1], [2, 0, 0, 0], [3, 0, 0, 0], [0, 2, 0, 0]]

@@ -5,13 +5,13 @@ import json
 import numpy as np
 import pytest
 
-from fogd import modelfile
-from fogd.compensator import Compensator
-from fogd.domain import choose_threshold, nearest_distance, thin
+from fogd.core import modelfile
+from fogd.core.compensator import Compensator
+from fogd.core.domain import choose_threshold, nearest_distance, thin
+from fogd.core.estimator import EstimatorSettings
+from fogd.core.flags import Flag
+from fogd.core.inputs import default_inputs
 from fogd.errors import ModelFileError
-from fogd.estimator import EstimatorSettings
-from fogd.flags import Flag
-from fogd.inputs import default_inputs
 
 RATE_HZ = 10.0
 INPUTS = default_inputs(EstimatorSettings(5.0, 0.5))

@@ -17,13 +17,13 @@ import serial
 
 from fogd import protocols
 from fogd.cli.emu import main
-from fogd.emulator import Emulator, Faults, RunSource, SimSource, point_link
+from fogd.core.runio import read_run
 from fogd.errors import DeviceError
-from fogd.lexer import Lexer
-from fogd.profiles import Profile
 from fogd.protocols.kvh import DPH_PER_RAD_S
-from fogd.runio import read_run
-from fogd.simulator import Simulation
+from fogd.protocols.lexer import Lexer
+from fogd.simulation.emulator import Emulator, Faults, RunSource, SimSource, point_link
+from fogd.simulation.profiles import Profile
+from fogd.simulation.simulator import Simulation
 
 COMMAND = [sys.executable, "-m", "fogd.cli.emu"]
 RATE_HZ = 200.0

@@ -5,7 +5,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fogd.estimator import TEMP_LSB_C, EstimatorSettings, TempRateEstimator, temp_rate_batch
+from fogd.core.estimator import (
+    TEMP_LSB_C,
+    EstimatorSettings,
+    TempRateEstimator,
+    temp_rate_batch,
+)
 
 
 def reference_rate(temp_c: np.ndarray, window: int, average: int, rate_hz: float) -> np.ndarray:

@@ -10,13 +10,20 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fogd import frozen
-from fogd.compensator import Compensator
-from fogd.estimator import EstimatorSettings, TempRateEstimator, temp_rate_batch
-from fogd.flags import Flag
-from fogd.frozen import FrozenModel, Linear, Polynomial, RbfNetwork, Svr, unique_rows
-from fogd.inputs import clamp_rows, default_inputs, parse_inputs, shifted_columns
-from fogd.runio import read_run
+from fogd.core import frozen
+from fogd.core.compensator import Compensator
+from fogd.core.estimator import EstimatorSettings, TempRateEstimator, temp_rate_batch
+from fogd.core.flags import Flag
+from fogd.core.frozen import (
+    FrozenModel,
+    Linear,
+    Polynomial,
+    RbfNetwork,
+    Svr,
+    unique_rows,
+)
+from fogd.core.inputs import clamp_rows, default_inputs, parse_inputs, shifted_columns
+from fogd.core.runio import read_run
 
 
 def chamber_temps(n: int, seed: int) -> np.ndarray:
@@ -138,7 +145,7 @@ def test_predict_one_with_a_plain_callable_evaluator():
 
 
 def reference_gaussian_sum(xs, centres, weights, gamma):
-    """fogd.frozen._gaussian_sum as first written: one (rows, centres, inputs) temporary per block."""
+    """fogd.core.frozen._gaussian_sum as first written: one (rows, centres, inputs) temporary per block."""
     out = np.empty(xs.shape[0])
     for start in range(0, xs.shape[0], 4096):
         block = xs[start : start + 4096]

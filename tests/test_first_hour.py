@@ -20,8 +20,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fogd import __version__, config
+from fogd import __version__
 from fogd.errors import ConfigError
+from fogd.serving import config
 
 ROOT = Path(__file__).resolve().parent.parent
 BIN = Path(sys.executable).parent

@@ -4,8 +4,8 @@ daemon are in test_hardening_e2e.py."""
 
 from __future__ import annotations
 
-import math
 import json
+import math
 import os
 import struct
 import threading
@@ -17,23 +17,24 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from fogd import config, modelfile
-from fogd.atomic import read_regular, replaced
 from fogd.cli import replay as replay_cli
 from fogd.cli import train as train_cli
-from fogd.compensator import Compensator
+from fogd.core import modelfile
+from fogd.core.atomic import read_regular, replaced
+from fogd.core.compensator import Compensator
+from fogd.core.estimator import EstimatorSettings
+from fogd.core.inputs import default_inputs
+from fogd.core.runio import read_run
 from fogd.errors import ConfigError, ModelFileError, UsageError
-from fogd.estimator import EstimatorSettings
-from fogd.inputs import default_inputs
-from fogd.lexer import Lexer
-from fogd.outputs import OUT_FORMATS, Formatter, OutputBatch, rate_rows
 from fogd.protocols import get
 from fogd.protocols.ascii import checksum
 from fogd.protocols.base import ALL_AXES, Frame
 from fogd.protocols.crc import crc16_ccitt_false, crc32_mpeg2
 from fogd.protocols.fogdbin import FRAME_LENGTHS as FOGD_LENGTHS
 from fogd.protocols.kvh import HEADER_A
-from fogd.runio import read_run
+from fogd.protocols.lexer import Lexer
+from fogd.serving import config
+from fogd.serving.outputs import OUT_FORMATS, Formatter, OutputBatch, rate_rows
 
 FUZZ = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

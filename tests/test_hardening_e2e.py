@@ -18,21 +18,32 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_daemon_e2e import (  # noqa: F401  # noqa: F401  (fixtures)
+    FOGD,
+    Emu,
+    Fogd,
+    Pty,
+    gyro,
+    model_path,
+    run_samples,
+    start_fogd,
+    wait_for_rows,
+    wire_frames,
+    write_run,
+)
+from test_hardening import model_document
 
-from fogd import daemon as daemon_module
-from fogd import modelfile
-from fogd.daemon import Daemon, Reload
-from fogd.lexer import Lexer
-from fogd.outputs import Formatter, Writer, open_sink
+from fogd.core import modelfile
 from fogd.protocols import get
 from fogd.protocols.crc import crc16_ccitt_false
 from fogd.protocols.fogdbin import FRAME_LENGTHS, TYPE_COMP
-from fogd.reader import Reader
-from fogd.ring import Ring
-from fogd.serialio import PortOpener
-from test_daemon_e2e import FOGD, Emu, Fogd, Pty, run_samples, start_fogd, wait_for_rows, wire_frames, write_run  # noqa: F401
-from test_daemon_e2e import gyro, model_path  # noqa: F401  (fixtures)
-from test_hardening import model_document
+from fogd.protocols.lexer import Lexer
+from fogd.serving import daemon as daemon_module
+from fogd.serving.daemon import Daemon, Reload
+from fogd.serving.outputs import Formatter, Writer, open_sink
+from fogd.serving.reader import Reader
+from fogd.serving.ring import Ring
+from fogd.serving.serialio import PortOpener
 
 
 def read_fifo(fd: int, into: bytearray, stop: threading.Event, stall_s: float) -> None:

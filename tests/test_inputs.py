@@ -7,10 +7,19 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fogd import modelfile
+from fogd.core import modelfile
+from fogd.core.estimator import EstimatorSettings
+from fogd.core.inputs import (
+    TEMP,
+    TEMP_LAG,
+    TEMP_RATE,
+    InputBank,
+    InputSpec,
+    describe_inputs,
+    inputs_batch,
+    parse_inputs,
+)
 from fogd.errors import ModelFileError
-from fogd.estimator import EstimatorSettings
-from fogd.inputs import TEMP, TEMP_LAG, TEMP_RATE, InputBank, InputSpec, describe_inputs, inputs_batch, parse_inputs
 
 RATE_HZ = 10.0
 MULTI = (

@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fogd.lag import LagFilter, lag_batch
+from fogd.core.lag import LagFilter, lag_batch
 
 
 def chunked(values: np.ndarray, sizes: list[int], tau_s: float, rate_hz: float) -> np.ndarray:
@@ -42,7 +42,7 @@ def test_one_sample_at_a_time_on_a_long_run_equals_batch():
 def test_python_floats_and_lfilter_chunks_interleaved_equal_batch():
     """Chunks below PYTHON_CHUNK (the daemon's: Python floats) and above it (replay's: scipy's lfilter), in any
     order, carry the same state and give lfilter's floats over the whole run."""
-    from fogd.lag import PYTHON_CHUNK
+    from fogd.core.lag import PYTHON_CHUNK
 
     rng = np.random.default_rng(4)
     temps = 20 + np.round(np.cumsum(rng.normal(0, 0.05, 30_000)))

@@ -9,11 +9,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fogd.errors import ConfigError
-from fogd.lexer import Lexer
 from fogd.protocols import Frame
 from fogd.protocols.ascii import AsciiProtocol
 from fogd.protocols.fogdbin import FogdProtocol
 from fogd.protocols.kvh import KvhProtocol, bit_reply
+from fogd.protocols.lexer import Lexer
 
 KVH = KvhProtocol()
 FOGD = FogdProtocol()

@@ -16,11 +16,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from fogd import modelfile
+from fogd.core import modelfile
+from fogd.core.estimator import EstimatorSettings
+from fogd.core.frozen import FrozenModel
+from fogd.core.inputs import TEMP, TEMP_RATE, default_inputs
 from fogd.errors import ModelFileError
-from fogd.estimator import EstimatorSettings
-from fogd.frozen import FrozenModel
-from fogd.inputs import TEMP, TEMP_RATE, default_inputs
 
 X_MEAN = np.array([20.0, 0.001])
 X_SCALE = np.array([10.0, 0.01])

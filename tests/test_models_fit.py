@@ -8,9 +8,9 @@ import json
 import numpy as np
 import pytest
 
+from fogd.calibration.models import METHODS, FitOptions, Fitted, fit, folds
+from fogd.core.frozen import build_evaluator
 from fogd.errors import InputError, UsageError
-from fogd.frozen import build_evaluator
-from fogd.models import METHODS, FitOptions, Fitted, fit, folds
 
 QUICK = FitOptions(particles=10, iterations=10, progress=False)
 
@@ -235,7 +235,7 @@ def test_paper_svr_has_no_trend_and_equals_plain_sklearn_svr() -> None:
 
 
 def test_trend_carries_a_linear_error_beyond_the_data_where_plain_svr_decays() -> None:
-    from fogd.models.svr import TrendSvr
+    from fogd.calibration.models.svr import TrendSvr
 
     rng = np.random.default_rng(7)
     xs = rng.uniform(-1.0, 1.0, (80, 2))
@@ -252,7 +252,7 @@ def test_convergence_warnings_are_counted_not_printed(recwarn, monkeypatch) -> N
     summary line in fogd-train) and none reaches the terminal."""
     from sklearn.exceptions import ConvergenceWarning
 
-    import fogd.models.rbf as rbf
+    import fogd.calibration.models.rbf as rbf
 
     monkeypatch.setattr(rbf, "_LASSO_MAX_ITER", 1)
     x, y, groups = chamber_rows(80, seed=13)
@@ -265,9 +265,9 @@ def test_convergence_warnings_are_counted_not_printed(recwarn, monkeypatch) -> N
 def test_a_fitted_polynomial_that_extrapolates_wildly_is_refused_in_one_line() -> None:
     """A 5th-order polynomial in six lagged temperatures reaches millions of deg/h at corners of the calibrated
     box no run visited: fogd-train says so and what to use, not that the model it just fitted is hostile."""
-    from fogd.inputs import parse_inputs
-    from fogd.runio import Run
-    from fogd.training import TrainConfig, train
+    from fogd.calibration.training import TrainConfig, train
+    from fogd.core.inputs import parse_inputs
+    from fogd.core.runio import Run
 
     rng = np.random.default_rng(0)
     runs = []

@@ -11,16 +11,24 @@ import time
 import numpy as np
 import pytest
 
-from fogd.compensator import Compensator
+from fogd.core.compensator import Compensator
+from fogd.core.estimator import EstimatorSettings
+from fogd.core.frozen import FrozenModel, Linear
+from fogd.core.inputs import default_inputs
 from fogd.errors import DeviceError
-from fogd.estimator import EstimatorSettings
-from fogd.frozen import FrozenModel, Linear
-from fogd.inputs import default_inputs
-from fogd.lexer import Lexer
-from fogd.outputs import CSV_COLUMNS, Chunk, Formatter, OutputBatch, Writer, open_sink, rate_rows
 from fogd.protocols import get
 from fogd.protocols.base import ALL_AXES, Frame
 from fogd.protocols.kvh import DPH_PER_RAD_S
+from fogd.protocols.lexer import Lexer
+from fogd.serving.outputs import (
+    CSV_COLUMNS,
+    Chunk,
+    Formatter,
+    OutputBatch,
+    Writer,
+    open_sink,
+    rate_rows,
+)
 
 RATE_HZ = 100.0
 Z = 2
@@ -278,7 +286,7 @@ class FullDisk:
     """A sink over a real file that takes `capacity` bytes and then fails like a full disk (ENOSPC)."""
 
     def __init__(self, path, capacity: int) -> None:
-        from fogd.outputs import Sink
+        from fogd.serving.outputs import Sink
 
         self.fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         self.sink = Sink(str(path), self.fd, blocking=True, on_close=lambda: os.close(self.fd))
@@ -300,7 +308,7 @@ def test_a_full_disk_leaves_whole_frames_and_counts_them(tmp_path, monkeypatch):
     """Issue 11.2/11.4: on a full disk the file held more frames than were counted, and a cut one. Now the
     file holds whole frames only, exactly as many as counted written."""
     disk = FullDisk(tmp_path / "out.jsonl", capacity=10_000)
-    monkeypatch.setattr("fogd.outputs.os.write", disk.write)
+    monkeypatch.setattr("fogd.serving.outputs.os.write", disk.write)
     writer = Writer(disk.sink)
     writer.start()
     for first in range(0, 1000, 100):

@@ -5,9 +5,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fogd import profiles
 from fogd.errors import InputError, UsageError
-from fogd.profiles import Profile
+from fogd.simulation import profiles
+from fogd.simulation.profiles import Profile
 
 
 def test_ramp_has_the_slope_of_its_segment_and_soaks_are_constant():

@@ -12,7 +12,7 @@ from fogd.protocols.ascii import MAX_RATE_DPH, AsciiProtocol
 from fogd.protocols.base import MAX_T_S
 
 ASCII = AsciiProtocol()
-DSP3000_LINE = b"       0.015733   1\r\n"  # the example in protocols.md: deg/s, then the validity flag
+DSP3000_LINE = b"       0.015733   1\r\n"  # a KVH DSP-3000 line: deg/s, then the validity flag
 
 
 def test_dsp3000_line_decodes_to_deg_per_hour_on_z():

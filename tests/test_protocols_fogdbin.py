@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from fogd.flags import Flag
+from fogd.core.flags import Flag
 from fogd.protocols import Frame, FrameError, get
 from fogd.protocols.crc import crc16_ccitt_false, crc16_ccitt_false_ok
 from fogd.protocols.fogdbin import FogdProtocol

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fogd.models import pso_minimize
+from fogd.calibration.models import pso_minimize
 
 CENTRE = np.array([1.5, -2.0, 0.7])
 

@@ -8,12 +8,12 @@ import os
 import time
 import tty
 
-from fogd.lexer import Lexer
 from fogd.protocols import get
 from fogd.protocols.base import ALL_AXES, Frame
-from fogd.reader import Reader
-from fogd.ring import Ring
-from fogd.serialio import open_port
+from fogd.protocols.lexer import Lexer
+from fogd.serving.reader import Reader
+from fogd.serving.ring import Ring
+from fogd.serving.serialio import open_port
 
 KVH = get("kvh-a")
 

@@ -157,7 +157,7 @@ def fogd_option_table() -> dict[str, str]:
 
 def test_fogd_defaults_agree_in_the_readme_help_and_config():
     from fogd.cli.daemon import parser
-    from fogd.config import OPTIONS
+    from fogd.serving.config import OPTIONS
 
     table = fogd_option_table()
     helps = {action.dest: action.help for action in parser()._actions}

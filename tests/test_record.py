@@ -1,4 +1,4 @@
-"""fogd-record on the emulator's pty: the CSV it writes reads back with fogd.runio.read_run and holds the
+"""fogd-record on the emulator's pty: the CSV it writes reads back with fogd.core.runio.read_run and holds the
 values the emulator sent, also across an unplug; SIGTERM stops it cleanly."""
 
 import signal
@@ -9,9 +9,9 @@ from collections.abc import Callable
 
 import numpy as np
 import pytest
-
-from fogd.runio import Run, read_run
 from test_daemon_e2e import RATE_HZ, Emu, run_samples, wait_for_rows, write_run
+
+from fogd.core.runio import Run, read_run
 
 RECORD = [sys.executable, "-m", "fogd.cli.record"]
 

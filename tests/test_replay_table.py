@@ -6,15 +6,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fogd import modelfile
-from fogd.estimator import EstimatorSettings
-from fogd.features import TRUE_ERROR_COLUMN
-from fogd.flags import Flag
-from fogd.frozen import FrozenModel
-from fogd.inputs import default_inputs
-from fogd.metrics import detrended_stats
-from fogd.replay import SETTLE_S, block_grid, replay, replay_table
-from fogd.runio import Run
+from fogd.calibration.replay import SETTLE_S, block_grid, replay, replay_table
+from fogd.core import modelfile
+from fogd.core.columns import TRUE_ERROR_COLUMN
+from fogd.core.errorstats import detrended_stats
+from fogd.core.estimator import EstimatorSettings
+from fogd.core.flags import Flag
+from fogd.core.frozen import FrozenModel
+from fogd.core.inputs import default_inputs
+from fogd.core.runio import Run
 
 RATE_HZ = 10.0
 

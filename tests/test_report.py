@@ -9,13 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fogd.calibration.models import METHODS, FitOptions
+from fogd.calibration.replay import replay, replay_table
+from fogd.calibration.report import SUMMARY, write_report
+from fogd.calibration.training import TrainConfig, Trained, prepare, train
+from fogd.core.inputs import default_inputs
+from fogd.core.runio import Run, read_run, write_csv
 from fogd.errors import InputError
-from fogd.inputs import default_inputs
-from fogd.models import METHODS, FitOptions
-from fogd.replay import replay, replay_table
-from fogd.report import SUMMARY, write_report
-from fogd.runio import Run, read_run, write_csv
-from fogd.training import TrainConfig, Trained, prepare, train
 
 RATE_HZ = 10.0
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"

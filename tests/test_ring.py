@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fogd.protocols.base import Frame
-from fogd.ring import Ring, kind_name
+from fogd.serving.ring import Ring, kind_name
 
 
 def numbered(start: int, count: int) -> list[Frame]:

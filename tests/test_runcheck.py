@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from fogd.calibration.runcheck import MIN_SPAN_C, check_calibration_run
+from fogd.core.runio import Run
 from fogd.errors import InputError
-from fogd.runcheck import MIN_SPAN_C, check_calibration_run
-from fogd.runio import Run
 
 RATE_HZ = 10.0
 WARMUP_S, BLOCK_S = 50.0, 100.0

@@ -10,8 +10,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from fogd.core.runio import read_run, write_csv
 from fogd.errors import InputError
-from fogd.runio import read_run, write_csv
 
 HEADER = "t_s,rate_dph,temp_c"
 

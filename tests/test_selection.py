@@ -5,11 +5,19 @@ import dataclasses
 import numpy as np
 import pytest
 
-from fogd.inputs import default_inputs
-from fogd.models import FitOptions
-from fogd.runio import Run
-from fogd.selection import MARGIN, Candidate, choose, input_sets, nested_rmse, select, table_lines
-from fogd.training import TrainConfig, prepare
+from fogd.calibration.models import FitOptions
+from fogd.calibration.selection import (
+    MARGIN,
+    Candidate,
+    choose,
+    input_sets,
+    nested_rmse,
+    select,
+    table_lines,
+)
+from fogd.calibration.training import TrainConfig, prepare
+from fogd.core.inputs import default_inputs
+from fogd.core.runio import Run
 
 
 def synthetic_run(name: str, seed: int, up: bool) -> Run:

@@ -22,19 +22,29 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_daemon_e2e import (  # noqa: F401
+    FOGD,
+    RATE_HZ,
+    Emu,
+    Fogd,
+    model_path,
+    run_samples,
+    start_fogd,
+    wait_for_rows,
+    write_run,
+)
 
-from fogd import modelfile
-from fogd.daemon import READER_STALL_S, Daemon
-from fogd.estimator import EstimatorSettings
-from fogd.inputs import default_inputs
-from fogd.lexer import Lexer
-from fogd.outputs import Formatter, Writer, open_sink
+from fogd.core import modelfile
+from fogd.core.estimator import EstimatorSettings
+from fogd.core.inputs import default_inputs
 from fogd.protocols import get
 from fogd.protocols.base import ALL_AXES, Frame
-from fogd.reader import Reader
-from fogd.ring import Ring
-from fogd.serialio import PortOpener, open_port
-from test_daemon_e2e import FOGD, RATE_HZ, Emu, Fogd, model_path, run_samples, start_fogd, wait_for_rows, write_run  # noqa: F401
+from fogd.protocols.lexer import Lexer
+from fogd.serving.daemon import READER_STALL_S, Daemon
+from fogd.serving.outputs import Formatter, Writer, open_sink
+from fogd.serving.reader import Reader
+from fogd.serving.ring import Ring
+from fogd.serving.serialio import PortOpener, open_port
 
 
 def linear_model(path: Path, intercept_dph: float, name: str) -> Path:
@@ -277,7 +287,7 @@ def test_pickle_model_is_refused_without_running_it(tmp_path):
 def test_shares_of_fallback_and_clamping_in_status_stats_and_metrics(tmp_path):
     """Running counts of OUT_OF_DOMAIN and CLAMPED samples, frame by frame and in one large batch, equal the
     flags the compensator returned; the status line, the snapshot and the metrics carry them."""
-    from fogd.metrics_http import render
+    from fogd.serving.prometheus import render
 
     doc = modelfile.document(
         name="guarded", method="linear", inputs=default_inputs(EstimatorSettings(window_s=0.5, average_s=0.05)),

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from fogd import profiles
-from fogd.profiles import Profile
-from fogd.simulator import (
+from fogd.simulation import profiles
+from fogd.simulation.profiles import Profile
+from fogd.simulation.simulator import (
     EARTH_RATE_DPH,
     NOISE_PRESETS,
     THERMAL_STRUCTURES,
@@ -185,7 +185,7 @@ def test_bad_parameters_are_refused():
 
 # --- noise grades, thermal structures and sensor mounts ------------------------------------------------------
 
-# sha256 of simulate(builtin("paper-test"), 10, 1) columns, computed with fogd/simulator.py as it was before the
+# sha256 of simulate(builtin("paper-test"), 10, 1) columns, computed with fogd/simulation/simulator.py as it was before the
 # thermal structures and noise grades were added (commit 27c91c5): the default gyro must not change.
 PAPER_TEST_SHA256 = {
     "rate_dph": "a318f8ba97a1190a1ea9aeabb94d9fdfb13c6a391790b20a35aae20101633331",

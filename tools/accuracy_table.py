@@ -21,14 +21,19 @@ import time
 
 import numpy as np
 
-from fogd.inputs import DEFAULT_INPUTS_TEXT, default_inputs, parse_inputs
-from fogd.models import FitOptions
-from fogd.profiles import builtin
-from fogd.replay import replay, replay_table
-from fogd.runio import Run
-from fogd.selection import AUTO_ITERATIONS, AUTO_PARTICLES, input_sets, select
-from fogd.simulator import params_for, simulate
-from fogd.training import TrainConfig, train
+from fogd.calibration.models import FitOptions
+from fogd.calibration.replay import replay, replay_table
+from fogd.calibration.selection import (
+    AUTO_ITERATIONS,
+    AUTO_PARTICLES,
+    input_sets,
+    select,
+)
+from fogd.calibration.training import TrainConfig, train
+from fogd.core.inputs import DEFAULT_INPUTS_TEXT, default_inputs, parse_inputs
+from fogd.core.runio import Run
+from fogd.simulation.profiles import builtin
+from fogd.simulation.simulator import params_for, simulate
 
 CALIBRATION = ("paper-train", "cooling", "cycle")
 HELD_OUT = ("paper-test", "cool-40-to-0", "fast-ramp", "soak-after-ramp", "fast-cycle")

@@ -18,12 +18,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # run as `python tools/bench_x.py` from anywhere
 
-from fogd import profiles  # noqa: E402
-from fogd.models import FitOptions  # noqa: E402
-from fogd.runio import Run  # noqa: E402
-from fogd.simulator import Simulation  # noqa: E402
-from fogd.inputs import default_inputs, parse_inputs  # noqa: E402
-from fogd.training import TrainConfig, Trained, train  # noqa: E402
+from fogd.calibration.models import FitOptions  # noqa: E402
+from fogd.calibration.training import TrainConfig, Trained, train  # noqa: E402
+from fogd.core.inputs import default_inputs, parse_inputs  # noqa: E402
+from fogd.core.runio import Run  # noqa: E402
+from fogd.simulation import profiles  # noqa: E402
+from fogd.simulation.simulator import Simulation  # noqa: E402
 
 
 def machine() -> str:

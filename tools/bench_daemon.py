@@ -47,8 +47,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-
 from bench_common import machine, print_table, verdict
+
 from fogd.protocols.base import ALL_AXES, Frame
 from fogd.protocols.kvh import HEADER_A, KvhProtocol
 
@@ -283,7 +283,7 @@ def fogd_command(model: str, switch_interval_s: float | None = None):
 HANDOVER_PROBE = """
 import atexit, sys, time
 import numpy as np
-from fogd import daemon
+from fogd.serving import daemon
 waits, compensate = [], daemon.Daemon.compensate
 def timed(self, frames, t_rx_s):
     if frames:
@@ -324,8 +324,8 @@ def lag_bank_model(path: Path) -> str:
     small swarm on a simulated run: the shape and size (about a hundred support vectors) an operator runs."""
     from bench_common import sim_run, trained_model
 
-    from fogd import modelfile
-    from fogd.inputs import DEFAULT_INPUTS_TEXT
+    from fogd.core import modelfile
+    from fogd.core.inputs import DEFAULT_INPUTS_TEXT
 
     trained = trained_model(sim_run("paper-train", 2.0), "pso-svr", particles=8, iterations=5, trend="coil",
                             inputs=DEFAULT_INPUTS_TEXT)  # fmt: skip
@@ -369,12 +369,12 @@ def stage_costs(model_path: str, batch_frames: int, calls: int) -> list[list[obj
     The syscalls are the reader's poll and read on a pty and the loop's write to /dev/null."""
     from types import SimpleNamespace
 
-    from fogd import modelfile
-    from fogd.daemon import MAX_BATCH, Daemon
-    from fogd.lexer import Lexer
-    from fogd.outputs import Formatter
-    from fogd.reader import READ_MAX_BYTES
-    from fogd.ring import Ring
+    from fogd.core import modelfile
+    from fogd.protocols.lexer import Lexer
+    from fogd.serving.daemon import MAX_BATCH, Daemon
+    from fogd.serving.outputs import Formatter
+    from fogd.serving.reader import READ_MAX_BYTES
+    from fogd.serving.ring import Ring
 
     protocol = KvhProtocol(comp_axes=(2,))
     lexer, ring = Lexer(protocol), Ring(1 << 15)

@@ -22,12 +22,12 @@ import argparse
 import time
 
 import numpy as np
-
 from bench_common import machine, print_table, sim_run, trained_model, us, verdict
-import fogd.estimator as fogd_estimator
-from fogd.compensator import Compensator
-from fogd.estimator import TempRateEstimator
-from fogd.inputs import DEFAULT_INPUTS_TEXT
+
+import fogd.core.estimator as fogd_estimator
+from fogd.core.compensator import Compensator
+from fogd.core.estimator import TempRateEstimator
+from fogd.core.inputs import DEFAULT_INPUTS_TEXT
 
 METHODS = ("ls-poly", "rbf-nn", "pso-svr")
 TARGET_RATIO = 20.0

@@ -1,9 +1,9 @@
 """Replay throughput: fogd-replay's compensation of a 10^6-row run, and its CSV reading against numpy's reader.
 
-  - compensation: `fogd.replay.replay()` (the daemon's compensator, chunked) on a run already in memory, per
-    model, in rows/s; kernel models are also timed without the exact distinct-row reuse in fogd.frozen
+  - compensation: `fogd.calibration.replay.replay()` (the daemon's compensator, chunked) on a run already in memory, per
+    model, in rows/s; kernel models are also timed without the exact distinct-row reuse in fogd.core.frozen
     (every row evaluated), the baseline it is measured against. Target: > 10^6 rows/s.
-  - reading: `fogd.runio.read_run` (numpy's C reader plus fogd's checks and the file's sha256) against
+  - reading: `fogd.core.runio.read_run` (numpy's C reader plus fogd's checks and the file's sha256) against
     `np.loadtxt` on the same file alone, and pandas.read_csv if pandas happens to be installed. Target:
     read_run not slower than np.loadtxt (ratio <= 1, within the noise of a shared machine).
 
@@ -18,11 +18,18 @@ import tempfile
 import time
 
 import numpy as np
+from bench_common import (
+    best_time,
+    machine,
+    print_table,
+    sim_run,
+    trained_model,
+    verdict,
+)
 
-import fogd.frozen as frozen
-from bench_common import best_time, machine, print_table, sim_run, trained_model, verdict
-from fogd.replay import replay
-from fogd.runio import read_run, write_csv
+import fogd.core.frozen as frozen
+from fogd.calibration.replay import replay
+from fogd.core.runio import read_run, write_csv
 
 METHODS = ("ls-poly", "rbf-nn", "pso-svr")
 TARGET_ROWS_S = 1e6

@@ -22,14 +22,14 @@ import time
 from pathlib import Path
 
 import numpy as np
+from bench_common import machine, print_table, verdict
 from joblib import Parallel, delayed
 
-from bench_common import machine, print_table, verdict
-from fogd.inputs import default_inputs
-from fogd.models.folds import folds
-from fogd.models.svr import LOG10_LOWER, LOG10_UPPER, svr_fitness
-from fogd.runio import read_run
-from fogd.training import TrainConfig, prepare
+from fogd.calibration.models.folds import folds
+from fogd.calibration.models.svr import LOG10_LOWER, LOG10_UPPER, svr_fitness
+from fogd.calibration.training import TrainConfig, prepare
+from fogd.core.inputs import default_inputs
+from fogd.core.runio import read_run
 
 BIN = Path(sys.executable).parent
 TARGET_S = {"train": 120.0, "cv": 600.0}

@@ -15,9 +15,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from accuracy_table import CALIBRATION, simulated_run  # noqa: E402
 
-from fogd import modelfile  # noqa: E402
-from fogd.models import FitOptions  # noqa: E402
-from fogd.training import TrainConfig, train  # noqa: E402
+from fogd.calibration.models import FitOptions  # noqa: E402
+from fogd.calibration.training import TrainConfig, train  # noqa: E402
+from fogd.core import modelfile  # noqa: E402
 
 OUTPUT = Path(__file__).resolve().parent.parent / "fogd" / "data" / "demo-model.json"
 

@@ -17,14 +17,14 @@ from __future__ import annotations
 import argparse
 import hashlib
 
-from fogd.inputs import default_inputs
-from fogd.metrics import ErrorStats
-from fogd.models import FitOptions
-from fogd.profiles import builtin
-from fogd.replay import replay, replay_table
-from fogd.runio import Run
-from fogd.simulator import params_for, simulate
-from fogd.training import TrainConfig, prepare, train
+from fogd.calibration.models import FitOptions
+from fogd.calibration.replay import replay, replay_table
+from fogd.calibration.training import TrainConfig, prepare, train
+from fogd.core.errorstats import ErrorStats
+from fogd.core.inputs import default_inputs
+from fogd.core.runio import Run
+from fogd.simulation.profiles import builtin
+from fogd.simulation.simulator import params_for, simulate
 
 METHODS = (("5th-order LS", "ls-poly"), ("RBF-NN (L1)", "rbf-nn"), ("PSO-SVR", "pso-svr"))
 

@@ -21,15 +21,15 @@ import argparse
 
 import numpy as np
 
-from fogd.metrics import detrended_stats
-from fogd.profiles import builtin
-from fogd.replay import block_grid
-from fogd.runio import Run
-from fogd.simulator import params_for, simulate
+from fogd.calibration.replay import block_grid
+from fogd.core.columns import BLOCK_S
+from fogd.core.errorstats import detrended_stats
+from fogd.core.runio import Run
+from fogd.simulation.profiles import builtin
+from fogd.simulation.simulator import params_for, simulate
 
 HELD_OUT = ("paper-test", "cool-40-to-0", "fast-ramp", "soak-after-ramp", "fast-cycle")  # as accuracy_table.py
 THERMALS = ("lumped", "diffusive")
-BLOCK_S = 100.0
 
 
 def ramp_starts_s(profile_name: str) -> list[float]:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from typing import Callable, NoReturn, Sequence
 
@@ -45,43 +44,3 @@ def run(prog: str, body: Callable[[Sequence[str] | None], int], argv: Sequence[s
         return 130
     except BrokenPipeError:
         return 0
-
-
-def number_in(low: float, high: float, unit: str = "", *, low_open: bool = False) -> Callable[[str], float]:
-    """An argparse type: a finite number within low..high (above low, when `low_open`)."""
-    unit_text = f" {unit}" if unit else ""
-    bounds = [f"above {low:g}" if low_open else f"at least {low:g}"] + ([f"at most {high:g}"] if math.isfinite(high) else [])
-    where = " and ".join(bounds) + unit_text
-
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-        if not (math.isfinite(value) and low <= value <= high) or (low_open and value == low):
-            raise argparse.ArgumentTypeError(f"{text!r} must be {where}")
-        return value
-
-    return parse
-
-
-def whole_number(minimum: int) -> Callable[[str], int]:
-    """An argparse type: a whole number of at least `minimum`."""
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"{text!r} must be at least {minimum}")
-        return value
-
-    return parse
-
-
-positive_float = number_in(0.0, math.inf, low_open=True)
-non_negative_float = number_in(0.0, math.inf)
-positive_int = whole_number(1)
-seed = whole_number(0)
-probability = number_in(0.0, 1.0)

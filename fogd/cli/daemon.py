@@ -1,7 +1,7 @@
 """`fogd`: the real-time daemon. Reads a FOG's serial port, compensates one gyro axis for temperature with a
 frozen model and writes the result to a sink. This module owns the command line, wiring the parts together and
 the signals (SIGTERM/SIGINT stop, SIGHUP reload, SIGUSR1 counters); settings and the config file live in
-fogd.config, the threads in fogd.reader, fogd.daemon and fogd.outputs.
+fogd.serving.config, the threads in fogd.serving.reader, fogd.serving.daemon and fogd.serving.outputs.
 """
 
 from __future__ import annotations
@@ -16,19 +16,21 @@ import threading
 from pathlib import Path
 from typing import Any, Sequence
 
-from fogd import __version__, config, modelfile, protocols, statsfile
+from fogd import __version__, protocols
 from fogd.cli.common import ArgumentParser, run
-from fogd.config import AXES, OPTION_BY_KEY, OPTIONS
-from fogd.daemon import RING_CAPACITY, Daemon, Reload
+from fogd.core import modelfile
+from fogd.core.flags import Flag
 from fogd.errors import ConfigError, DeviceError
-from fogd.profiles import HOUR_S, Profile
-from fogd.flags import Flag
-from fogd.lexer import Lexer
-from fogd.outputs import Formatter, Writer, open_sink
-from fogd.reader import Reader
-from fogd.ring import Ring
-from fogd.sdnotify import Notifier
-from fogd.serialio import PortOpener, open_port
+from fogd.protocols.lexer import Lexer
+from fogd.serving import config, statsfile
+from fogd.serving.config import AXES, OPTION_BY_KEY, OPTIONS
+from fogd.serving.daemon import RING_CAPACITY, Daemon, Reload
+from fogd.serving.outputs import Formatter, Writer, open_sink
+from fogd.serving.reader import Reader
+from fogd.serving.ring import Ring
+from fogd.serving.sdnotify import Notifier
+from fogd.serving.serialio import PortOpener, open_port
+from fogd.simulation.profiles import HOUR_S, Profile
 
 PROG = "fogd"
 DEMO_MODEL = Path(__file__).resolve().parent.parent / "data" / "demo-model.json"
@@ -115,7 +117,7 @@ class Settings:
 def demo(settings: dict[str, Any], protocol: protocols.Protocol, model, *, out_given: bool) -> int:
     """The emulator streams a simulated chamber run, compressed in time, onto a pty in this process; fogd
     compensates it and prints a live status line every second. Output is discarded unless --out is given."""
-    from fogd.emulator import Emulator, SimSource
+    from fogd.simulation.emulator import Emulator, SimSource
 
     source = Later(SimSource(DEMO_PROFILE, DEMO_RATE_HZ, seed=1), DEMO_START_S)
     emulator = Emulator(source, protocol.name, speed=DEMO_SPEED, wait_reader=True, drain_timeout_s=0.0)
@@ -158,7 +160,7 @@ def demo(settings: dict[str, Any], protocol: protocols.Protocol, model, *, out_g
 
 
 class Later:
-    """A source of samples (fogd.emulator's SimSource) from `start_s` on, its time starting at 0 there."""
+    """A source of samples (fogd.simulation.emulator's SimSource) from `start_s` on, its time starting at 0 there."""
 
     def __init__(self, source, start_s: float) -> None:
         self.source = source
@@ -282,10 +284,10 @@ def serve(settings: dict[str, Any], protocol: protocols.Protocol, model, *, on_d
         info={"instance": instance, "port": path, "protocol": protocol.name, "out": settings["out"]},
     )
     if settings["metrics_port"] is not None:
-        from fogd import metrics_http
+        from fogd.serving import prometheus
 
         try:
-            metrics_http.serve(daemon.snapshot, settings["metrics_address"], settings["metrics_port"])
+            prometheus.serve(daemon.snapshot, settings["metrics_address"], settings["metrics_port"])
         except DeviceError:
             port.close()
             daemon.writer.sink.close()

@@ -1,5 +1,5 @@
 """`fogd-emu`: a FOG on a pseudo-terminal, for tests, CI and the demo (like gpsd's gpsfake). This module owns
-the command line only: options, building the source, faults and `fogd.emulator.Emulator`, printing the pty
+the command line only: options, building the source, faults and `fogd.simulation.emulator.Emulator`, printing the pty
 path(s) on stdout and the summary on stderr, and stopping cleanly on SIGTERM/SIGINT.
 """
 
@@ -12,11 +12,19 @@ import signal
 import sys
 from typing import Sequence
 
-from fogd import profiles, protocols
-from fogd.cli.common import ArgumentParser, non_negative_float, positive_float, positive_int, probability, run, seed
-from fogd.emulator import Emulator, Faults, RunSource, SimSource
+from fogd import protocols
+from fogd.cli.common import ArgumentParser, run
+from fogd.core.numbers import (
+    non_negative_float,
+    positive_float,
+    positive_int,
+    probability,
+    seed,
+)
+from fogd.core.runio import read_run
 from fogd.errors import UsageError
-from fogd.runio import read_run
+from fogd.simulation import profiles
+from fogd.simulation.emulator import Emulator, Faults, RunSource, SimSource
 
 PROG = "fogd-emu"
 DEFAULT_RATE_HZ = 200.0

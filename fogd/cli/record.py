@@ -21,16 +21,17 @@ from typing import IO, Sequence
 import numpy as np
 
 from fogd import protocols
-from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, positive_float, positive_int, run
-from fogd.daemon import RING_CAPACITY, SampleClock, TemperatureHold
+from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, run
+from fogd.core.columns import RUN_COLUMNS
+from fogd.core.estimator import EstimatorSettings, TempRateEstimator
+from fogd.core.numbers import positive_float, positive_int
 from fogd.errors import DeviceError, describe_os_error
-from fogd.estimator import EstimatorSettings, TempRateEstimator
-from fogd.lexer import Lexer
 from fogd.protocols.base import Frame
-from fogd.reader import Reader
-from fogd.ring import Ring
-from fogd.runio import RUN_COLUMNS
-from fogd.serialio import open_port
+from fogd.protocols.lexer import Lexer
+from fogd.serving.daemon import RING_CAPACITY, SampleClock, TemperatureHold
+from fogd.serving.reader import Reader
+from fogd.serving.ring import Ring
+from fogd.serving.serialio import open_port
 
 PROG = "fogd-record"
 AXES = ("x", "y", "z")

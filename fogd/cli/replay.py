@@ -8,26 +8,25 @@ from typing import Sequence
 
 import numpy as np
 
-from fogd import modelfile
-from fogd.atomic import refuse_inputs
+from fogd.calibration.allan import plot, summary_lines
+from fogd.calibration.replay import (
+    SETTLE_S,
+    ReplayTable,
+    allan_curves,
+    replay,
+    replay_table,
+)
+from fogd.calibration.tables import error_table
+from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, run
+from fogd.core import modelfile
+from fogd.core.atomic import refuse_inputs
+from fogd.core.columns import BLOCK_S, OUTPUT_FORMATS
+from fogd.core.flags import Flag
+from fogd.core.numbers import non_negative_float, positive_float
+from fogd.core.runio import read_run, write_csv
 from fogd.errors import ModelFileError, NoModelFileError, UsageError
-from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, non_negative_float, positive_float, run
-from fogd.flags import Flag
-from fogd.allan import plot, summary_lines
-from fogd.replay import SETTLE_S, ReplayTable, allan_curves, replay, replay_table
-from fogd.runio import read_run, write_csv
-from fogd.tables import error_table
 
 PROG = "fogd-replay"
-OUTPUT_FORMATS = {
-    "t_s": "%.6f",
-    "rate_dph": "%.9g",
-    "temp_c": "%.9g",
-    "temp_rate_cps": "%.9g",
-    "comp_dph": "%.9g",
-    "rate_comp_dph": "%.9g",
-    "flags": "%d",
-}
 
 
 def parser() -> ArgumentParser:
@@ -42,7 +41,7 @@ def parser() -> ArgumentParser:
     p.add_argument("model", metavar="MODEL.json", help="model file written by fogd-train")
     p.add_argument("run", metavar="RUN.csv", help="recorded run to compensate")
     p.add_argument("-o", "--output", metavar="OUT.csv", help="compensated CSV to write ('-' for stdout)")
-    p.add_argument("--block-s", type=positive_float, default=100.0, help="block length for table 4, in seconds")
+    p.add_argument("--block-s", type=positive_float, default=BLOCK_S, help="block length for table 4, in seconds")
     p.add_argument(
         "--settle-s", type=non_negative_float, default=SETTLE_S,
         help="thermal settling at the start of the run that table 4 skips, in seconds (0 when the run is too "

@@ -1,8 +1,8 @@
 """`fogd-sim`: write a simulated thermal-chamber FOG run as a CSV (`t_s,rate_dph,temp_c,true_error_dph`).
 
 This module owns the command line only: parsing and checking options, turning them into a profile and
-`SimParams`, and writing the run with `fogd.runio.write_csv`. The physics lives in `fogd.simulator`, the
-chamber profiles in `fogd.profiles`.
+`SimParams`, and writing the run with `fogd.core.runio.write_csv`. The physics lives in `fogd.simulation.simulator`, the
+chamber profiles in `fogd.simulation.profiles`.
 """
 
 from __future__ import annotations
@@ -15,11 +15,12 @@ import time
 
 import numpy as np
 
-from fogd import profiles
-from fogd.cli.common import ArgumentParser, number_in, seed
+from fogd.cli.common import ArgumentParser
+from fogd.core.numbers import number_in, seed
+from fogd.core.runio import write_csv
 from fogd.errors import FogdError, UsageError
-from fogd.runio import write_csv
-from fogd.simulator import (
+from fogd.simulation import profiles
+from fogd.simulation.simulator import (
     MAX_COIL_NODES,
     MAX_RATE_HZ,
     MIN_RATE_HZ,

@@ -12,9 +12,10 @@ import sys
 import time
 from typing import Any, Sequence
 
-from fogd import config, statsfile
-from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, number_in, run, whole_number
-from fogd.flags import Flag, describe
+from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, run
+from fogd.core.flags import Flag, describe
+from fogd.core.numbers import number_in, whole_number
+from fogd.serving import config, statsfile
 
 PROG = "fogd-top"
 EXIT_NOT_RUNNING = 3  # as `fogd --status`

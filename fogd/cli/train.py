@@ -6,22 +6,38 @@ import argparse
 import sys
 from typing import Sequence
 
-from fogd import modelfile
-from fogd.atomic import refuse_inputs
-from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, non_negative_float, positive_float, positive_int, run
+from fogd.calibration.models import FITNESSES, METHODS, FitOptions
+from fogd.calibration.models.folds import MIN_RUNS_LEFT_OUT, drift_rmse
+from fogd.calibration.models.least_squares import POLY_TERMS
+from fogd.calibration.models.svr import TRENDS
+from fogd.calibration.replay import replay, replay_table
+from fogd.calibration.runcheck import check_calibration_run
+from fogd.calibration.selection import (
+    AUTO_ITERATIONS,
+    AUTO_PARTICLES,
+    DEFAULT_INPUT_SETS,
+    input_sets,
+    select,
+    stderr_log,
+    table_lines,
+)
+from fogd.calibration.tables import error_table
+from fogd.calibration.training import TrainConfig, Trained, prepare, train
+from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, run
+from fogd.core import modelfile
+from fogd.core.atomic import refuse_inputs
+from fogd.core.columns import BLOCK_S
+from fogd.core.estimator import EstimatorSettings
+from fogd.core.inputs import (
+    DEFAULT_INPUTS_TEXT,
+    INPUTS_SYNTAX,
+    default_inputs,
+    parse_inputs,
+    warmup_samples,
+)
+from fogd.core.numbers import non_negative_float, positive_float, positive_int
+from fogd.core.runio import read_run
 from fogd.errors import InputError, UsageError
-from fogd.estimator import EstimatorSettings
-from fogd.inputs import DEFAULT_INPUTS_TEXT, INPUTS_SYNTAX, default_inputs, parse_inputs, warmup_samples
-from fogd.models.folds import MIN_RUNS_LEFT_OUT, drift_rmse
-from fogd.models.svr import TRENDS
-from fogd.runcheck import check_calibration_run
-from fogd.models import FITNESSES, METHODS, FitOptions
-from fogd.models.least_squares import POLY_TERMS
-from fogd.replay import replay, replay_table
-from fogd.runio import read_run
-from fogd.selection import AUTO_ITERATIONS, AUTO_PARTICLES, DEFAULT_INPUT_SETS, input_sets, select, stderr_log, table_lines
-from fogd.tables import error_table
-from fogd.training import TrainConfig, Trained, prepare, train
 
 PROG = "fogd-train"
 
@@ -95,7 +111,7 @@ def parser() -> ArgumentParser:
     p.add_argument("--window-s", type=positive_float, default=50.0, help="eq. 16 window N, in seconds, of --inputs paper")
     p.add_argument("--average-s", type=positive_float, default=0.5, help="eq. 16 averaging window m, in seconds")
     p.add_argument("--step-s", type=non_negative_float, default=0.0, help="eq. 16 step l, in seconds (0: every sample)")
-    p.add_argument("--block-s", type=positive_float, default=100.0, help="block length for targets, in seconds")
+    p.add_argument("--block-s", type=positive_float, default=BLOCK_S, help="block length for targets, in seconds")
     p.add_argument(
         "--reference", default="mean",
         help="rate subtracted to get the error: 'mean' of the training blocks, or a value in deg/h",
@@ -211,7 +227,9 @@ def body(argv: Sequence[str] | None) -> int:
         modelfile.save(args.output, chosen.document, inputs=[*args.runs, *args.holdout])
         print(f"\nwrote {args.output} ({label}, {chosen.model.name})", file=sys.stderr)
     if args.report:
-        from fogd.report import write_report  # matplotlib only when a report is asked for
+        from fogd.calibration.report import (
+            write_report,  # matplotlib only when a report is asked for
+        )
 
         path = write_report(args.report, trained, label, holdouts, args.block_s, selection=selection, allan=True)
         print(f"wrote report {path}", file=sys.stderr)

@@ -4,6 +4,9 @@
 - `kvh-a`: KVH DSP-1750/1760/1775 binary Format A (also B, C and BIT replies), kvh.py
 - `fogd`: fogd's own binary rate / temperature / compensated-output frames, fogdbin.py
 - `ascii`: KVH DSP-3000 lines and fogd's R/T/I/C lines, ascii.py
+
+The byte-driven lexer that finds frames of any of them in a stream is lexer.py. Protocols know bytes and
+frames only: they never import the model, the core, the daemon or the command line.
 """
 
 from ..errors import UsageError

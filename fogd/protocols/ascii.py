@@ -19,7 +19,17 @@ import re
 from collections.abc import Sequence
 
 from ..errors import ConfigError
-from .base import IMPLAUSIBLE, MAX_T_S, NAN, Z_ONLY, Axes3, Frame, FrameError, Mask3, Protocol
+from .base import (
+    IMPLAUSIBLE,
+    MAX_T_S,
+    NAN,
+    Z_ONLY,
+    Axes3,
+    Frame,
+    FrameError,
+    Mask3,
+    Protocol,
+)
 
 MAX_LINE_LEN = 256
 MAX_RATE_DPH = 3.4e38  # float32's range: every output format can carry it

@@ -1,0 +1,100 @@
+"""Training rows from calibration runs: model inputs and thermal-error targets as block means.
+
+Inputs come from the very code the daemon runs (temperature hold, eq. 16 estimator) in its batch form;
+targets are block means of the rate (100 s by default, as in the paper) minus a reference. Blocks start after
+each run's warm-up and never straddle two runs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fogd.core.columns import TRUE_ERROR_COLUMN, block_samples
+from fogd.core.compensator import hold_temperature, temperature_valid
+from fogd.core.errorstats import block_means
+from fogd.core.inputs import InputSpec, inputs_batch, warmup_samples
+from fogd.core.runio import Run
+from fogd.errors import InputError
+
+SAMPLE_ROWS_PER_RUN = 5000  # sample-level input rows kept per run (the domain guard's threshold uses them)
+
+
+@dataclass
+class TrainingSet:
+    """Block rows from one or more runs, ready for a model fit."""
+
+    x: np.ndarray  # (blocks, inputs) block means of the model inputs
+    rate_dph: np.ndarray  # (blocks,) block means of the measured rate
+    groups: np.ndarray  # (blocks,) index of the run each block came from
+    block_t_s: np.ndarray  # (blocks,) time of each block's centre within its run
+    domain_min: np.ndarray  # per-input range seen sample by sample in the warm rows: the calibrated domain
+    domain_max: np.ndarray
+    true_error_dph: np.ndarray | None = None  # block means of the simulator's truth, when every run has it
+    runs: list[dict] = field(default_factory=list)
+    x_samples: np.ndarray | None = None  # evenly strided warm sample rows (inputs as served, not block means)
+
+
+def training_set(runs: list[Run], specs: tuple[InputSpec, ...], block_s: float, min_warmup_s: float = 0.0) -> TrainingSet:
+    """Build the block rows of all runs; raises InputError if a run is too short to give any.
+
+    `min_warmup_s` starts the blocks at least that late in each run, so that input sets with different
+    estimator windows get the very same blocks and targets (`--method auto` compares them on those)."""
+    parts = [_run_blocks(run, index, specs, block_s, min_warmup_s) for index, run in enumerate(runs)]
+    with_truth = all(part["truth"] is not None for part in parts)
+    return TrainingSet(
+        x=np.concatenate([part["x"] for part in parts]),
+        rate_dph=np.concatenate([part["rate"] for part in parts]),
+        groups=np.concatenate([np.full(len(part["rate"]), index) for index, part in enumerate(parts)]),
+        block_t_s=np.concatenate([part["t"] for part in parts]),
+        domain_min=np.min([part["low"] for part in parts], axis=0),
+        domain_max=np.max([part["high"] for part in parts], axis=0),
+        true_error_dph=np.concatenate([part["truth"] for part in parts]) if with_truth else None,
+        runs=[part["info"] for part in parts],
+        x_samples=np.concatenate([part["samples"] for part in parts]),
+    )
+
+
+def _run_blocks(run: Run, index: int, specs: tuple[InputSpec, ...], block_s: float, min_warmup_s: float) -> dict:
+    warmup = max(warmup_samples(specs, run.rate_hz), int(round(min_warmup_s * run.rate_hz)))
+    block_n = block_samples(block_s, run.rate_hz)
+    temp_ok = temperature_valid(run.temp_c)
+    if not temp_ok.any():
+        raise InputError(f"{run.path}: no valid temperature in the whole run")
+    first = int(np.argmax(temp_ok))
+    temp_c = hold_temperature(run.temp_c[first:], temp_ok[first:])
+    usable_rows = temp_c.size - warmup
+    if usable_rows < block_n:
+        raise InputError(
+            f"{run.path}: {run.rows} rows at {run.rate_hz:.6g} Hz is too short: the estimator window needs "
+            f"{warmup + 1} rows and one {block_s:g} s block {block_n} more"
+        )
+    x = inputs_batch(temp_c, specs, run.rate_hz)[warmup:]
+    rate = run.rate_dph[first + warmup :]
+    use = temp_ok[first + warmup :] & np.isfinite(rate)
+    x_blocks, kept = block_means(x, use, block_n)
+    rate_blocks, _ = block_means(rate, use, block_n)
+    if not kept.any():
+        raise InputError(f"{run.path}: no {block_s:g} s block has at least half of its rows valid")
+    centres = run.t_s[first + warmup + block_n // 2 :: block_n][: kept.size][kept]
+    truth = run.extra.get(TRUE_ERROR_COLUMN)
+    truth_blocks = None if truth is None else block_means(truth[first + warmup :], use, block_n)[0]
+    return {
+        "x": x_blocks,
+        "rate": rate_blocks,
+        "t": centres - run.t_s[0],
+        "low": x[use].min(axis=0),
+        "high": x[use].max(axis=0),
+        "truth": truth_blocks,
+        "samples": x[use][:: max(1, int(use.sum()) // SAMPLE_ROWS_PER_RUN)],
+        "info": {
+            "name": run.name,
+            "sha256": run.sha256,
+            "rows": run.rows,
+            "nan_rows": run.nan_rows,
+            "rate_hz": run.rate_hz,
+            "blocks": int(kept.sum()),
+            "index": index,
+        },
+    }

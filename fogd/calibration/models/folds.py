@@ -1,0 +1,97 @@
+"""Held-out folds for calibration blocks and the pooled held-out RMSE every method is judged by.
+
+Blocks of one run are neighbours in time, so shuffled folds would let a model be tested on rows sitting
+between its training rows. With three runs or more each run is held out in turn (leave-one-run-out); with
+one or two, every run is cut into contiguous stretches of time and the k-th stretch of each is held out
+together (with two runs, leaving one out would judge a model fitted on a heating run alone by a cooling
+run's history, which says more about the runs than about the model). Every row is tested exactly once.
+
+The score is the error users care about: the drift about each run's own mean (as table 4 and the Allan
+deviation measure it), so a held-out run's constant turn-on bias, which no temperature model can predict,
+does not drown the differences between models.
+"""
+
+from __future__ import annotations
+
+import inspect
+from typing import Callable
+
+import numpy as np
+from sklearn.base import clone
+
+from fogd.core.errorstats import centred_within_runs
+from fogd.errors import InputError
+
+Split = tuple[np.ndarray, np.ndarray]
+
+
+MIN_RUNS_LEFT_OUT = 3  # with fewer runs, a model fitted on one run would be judged on the other's history
+
+
+def folds(groups: np.ndarray, n_folds: int) -> list[Split]:
+    """(train_idx, test_idx) pairs: leave-one-run-out with >= MIN_RUNS_LEFT_OUT distinct groups, else `n_folds`
+    contiguous stretches of time cut from every run alike (fold k holds out the k-th stretch of each run)."""
+    groups = np.asarray(groups)
+    rows = np.arange(groups.size)
+    runs = np.unique(groups)
+    if runs.size >= MIN_RUNS_LEFT_OUT:
+        return [(rows[groups != run], rows[groups == run]) for run in runs]
+    if n_folds < 2:
+        raise InputError(f"held-out folds need at least {MIN_RUNS_LEFT_OUT} runs or --folds >= 2 (have {n_folds}): add a run or raise --folds")
+    fold_of = np.empty(groups.size, dtype=np.int64)
+    for run in runs:
+        in_run = rows[groups == run]
+        if in_run.size < 2 * n_folds:
+            raise InputError(
+                f"{in_run.size} block rows in a run are too few for {n_folds} time folds: record more or longer runs, "
+                "use a smaller --block-s or fewer --folds"
+            )
+        for fold, stretch in enumerate(np.array_split(in_run, n_folds)):
+            fold_of[stretch] = fold
+    return [(rows[fold_of != fold], rows[fold_of == fold]) for fold in range(n_folds)]
+
+
+def fit_in_runs(estimator, xs: np.ndarray, ys: np.ndarray, groups: np.ndarray | None):
+    """`estimator.fit`, with the rows' runs for estimators that fit one offset per run."""
+    if groups is not None and "groups" in inspect.signature(estimator.fit).parameters:
+        return estimator.fit(xs, ys, groups=groups)
+    return estimator.fit(xs, ys)
+
+
+def run_levels(train_residual: np.ndarray, train_groups: np.ndarray | None, test_groups: np.ndarray | None) -> np.ndarray:
+    """For each test row, its run's mean residual over that run's training rows (0 for a run not trained on).
+
+    With time folds a held-out stretch's run also has training stretches, whose offset the fit estimated; the
+    stretch is predicted with that offset, as a model's level on a run it was calibrated on. With
+    leave-one-run-out nothing is known of the held-out run's offset, and its drift is scored about its mean."""
+    if train_groups is None or test_groups is None:
+        return np.zeros(len(test_groups) if test_groups is not None else 0)
+    levels = np.zeros(len(test_groups))
+    for run in np.unique(test_groups):
+        trained = train_groups == run
+        if trained.any():
+            levels[test_groups == run] = train_residual[trained].mean()
+    return levels
+
+
+def drift_rmse(residual: np.ndarray, groups: np.ndarray | None) -> float:
+    """RMSE of residuals about each run's own mean residual."""
+    return float(np.sqrt(np.mean(centred_within_runs(residual, groups) ** 2)))
+
+
+Clamp = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (test rows, training rows) -> test rows as served
+
+
+def held_out_rmse(estimator, xs: np.ndarray, ys: np.ndarray, splits: list[Split], groups: np.ndarray | None = None,
+                  clamp: Clamp | None = None) -> float:  # fmt: skip
+    """Drift RMSE (scaled units, about each run's mean) of a fresh clone of `estimator` fitted on each training
+    fold, pooled over the test rows (clamped to the training rows' domain by `clamp`, as the daemon clamps)."""
+    residual = np.empty_like(ys)
+    for train, test in splits:
+        model = fit_in_runs(clone(estimator), xs[train], ys[train], None if groups is None else groups[train])
+        x_test = xs[test] if clamp is None else clamp(xs[test], xs[train])
+        residual[test] = model.predict(x_test) - ys[test]
+        if groups is not None:
+            levels = run_levels(ys[train] - model.predict(xs[train]), groups[train], groups[test])
+            residual[test] += levels
+    return drift_rmse(residual, groups)

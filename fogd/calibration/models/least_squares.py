@@ -1,0 +1,98 @@
+"""Least-squares models: the linear fit (IEEE 952) and the paper's 5th-order polynomial (section 4.1).
+
+Both are ordinary least squares in the scaled space. The polynomial's terms are one of `POLY_TERMS`:
+- `full` (the paper's): every monomial of total degree 1..degree of the scaled inputs, in scikit-learn's
+  PolynomialFeatures order;
+- `temp`: the powers 1..degree of each temperature input (the sensor temperature, lagged temperatures) and
+  the other inputs (temperature rates) linear, with no cross terms: IEEE 952's model with its static term
+  a polynomial in temperature. It has far fewer terms and, having no powers of the rate, cannot bend far
+  from the linear model where calibration data were sparse.
+Either way the monomials are the `powers` stored in the model file. Every fit has one offset per calibration
+run (`RunOffsetLeastSquares`), so run-to-run turn-on bias is not read as a temperature effect.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from sklearn.base import BaseEstimator, RegressorMixin
+from sklearn.preprocessing import PolynomialFeatures
+
+from fogd.calibration.models.coil import CoilTerms
+from fogd.calibration.models.method import MethodFit
+from fogd.core.errorstats import centred_within_runs
+from fogd.core.frozen import monomials
+
+POLY_TERMS = ("full", "temp")
+
+
+def polynomial_terms(inputs: int, degree: int, terms: str = "full", temperature_columns: tuple[int, ...] = (0,)) -> int:
+    """How many monomials the polynomial of `terms` has in `inputs` variables."""
+    if terms == "full":
+        return math.comb(inputs + degree, degree) - 1
+    return len(temperature_powers(inputs, degree, temperature_columns))
+
+
+def temperature_powers(inputs: int, degree: int, temperature_columns: tuple[int, ...]) -> np.ndarray:
+    """The `temp` terms' powers: 1..degree for each temperature column, 1 for the others, one input per term."""
+    rows = []
+    for column in range(inputs):
+        for power in range(1, (degree if column in temperature_columns else 1) + 1):
+            row = [0] * inputs
+            row[column] = power
+            rows.append(row)
+    return np.array(rows, dtype=np.int64).reshape(-1, inputs)
+
+
+class RunOffsetLeastSquares(RegressorMixin, BaseEstimator):
+    """Least squares on the monomials `powers` of the scaled inputs (the inputs themselves when None; the
+    coil-temperature terms when CoilTerms, fogd.calibration.models.coil), with one
+    offset per calibration run: a gyro's turn-on bias differs from run to run and is not thermal, so it must
+    not leak into the temperature coefficients. Fitting on rows centred within each run is the same as fitting
+    an offset per run (Frisch-Waugh-Lovell); the model's intercept is then the runs' mean offset, weighted by
+    rows, and predictions need no run."""
+
+    def __init__(self, powers: np.ndarray | CoilTerms | None = None) -> None:
+        self.powers = powers
+
+    def features(self, xs: np.ndarray) -> np.ndarray:
+        if self.powers is None:
+            return xs
+        if isinstance(self.powers, CoilTerms):
+            return self.powers(xs)
+        return monomials(xs, np.asarray(self.powers))
+
+    def fit(self, xs: np.ndarray, ys: np.ndarray, groups: np.ndarray | None = None) -> "RunOffsetLeastSquares":
+        features = self.features(xs)
+        centred_x, centred_y = centred_within_runs(features, groups), centred_within_runs(ys, groups)
+        self.coef_ = np.linalg.lstsq(centred_x, centred_y, rcond=None)[0]
+        self.intercept_ = float(np.mean(ys) - features.mean(axis=0) @ self.coef_)
+        return self
+
+    def predict(self, xs: np.ndarray) -> np.ndarray:
+        return self.features(xs) @ self.coef_ + self.intercept_
+
+
+def full_powers(inputs: int, degree: int) -> np.ndarray:
+    """The paper's terms: every monomial of total degree 1..degree, in scikit-learn's PolynomialFeatures order."""
+    return PolynomialFeatures(degree, include_bias=False).fit(np.zeros((1, inputs))).powers_.astype(np.int64)
+
+
+def fit_linear(xs: np.ndarray, ys: np.ndarray, groups: np.ndarray | None = None) -> MethodFit:
+    model = RunOffsetLeastSquares().fit(xs, ys, groups)
+    params = {"coef": model.coef_.tolist(), "intercept": model.intercept_}
+    return MethodFit(model, params, {})
+
+
+def fit_polynomial(
+    xs: np.ndarray, ys: np.ndarray, degree: int, terms: str = "full", temperature_columns: tuple[int, ...] = (0,),
+    groups: np.ndarray | None = None,
+) -> MethodFit:
+    if terms == "full":
+        powers = full_powers(xs.shape[1], degree)
+    else:
+        powers = temperature_powers(xs.shape[1], degree, temperature_columns)
+    model = RunOffsetLeastSquares(powers).fit(xs, ys, groups)
+    params = {"powers": powers.tolist(), "coef": model.coef_.tolist(), "intercept": model.intercept_}
+    return MethodFit(model, params, {"degree": degree, "terms": terms})

@@ -1,0 +1,163 @@
+"""Training: calibration runs in, a validated model document and its frozen model out.
+
+This is where the pieces meet: block rows from `features`, a fit from `models`, the calibrated domain and
+the estimator settings written into the model file so that serving cannot disagree with training.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as dt
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from fogd.calibration.features import TrainingSet, training_set
+from fogd.calibration.models import FitOptions, Fitted, fit
+from fogd.core import domain, modelfile
+from fogd.core.columns import BLOCK_S, block_samples
+from fogd.core.errorstats import ErrorStats
+from fogd.core.frozen import FrozenModel
+from fogd.core.inputs import (
+    DEFAULT_INPUTS_TEXT,
+    InputSpec,
+    parse_inputs,
+    shifted_columns,
+    static_columns,
+    temperature_columns,
+)
+from fogd.core.runio import Run
+from fogd.errors import InputError
+
+
+@dataclass
+class TrainConfig:
+    """Everything `fogd-train` decides besides the runs."""
+
+    method: str = "pso-svr"
+    inputs: tuple[InputSpec, ...] = field(default_factory=lambda: parse_inputs(DEFAULT_INPUTS_TEXT))
+    block_s: float = BLOCK_S
+    reference: str | float = "mean"  # 'mean' of all training blocks, or a rate in deg/h
+    fit: FitOptions = field(default_factory=FitOptions)
+    name: str | None = None
+    domain_guard: bool = False  # store the joint-space guard and its linear fallback (fogd.core.domain), as --domain-guard
+
+
+@dataclass
+class Trained:
+    """A trained model with what produced it (the fit and the block rows) for tables and figures."""
+
+    document: dict[str, Any]
+    model: FrozenModel
+    fitted: Fitted
+    data: TrainingSet
+    reference_dph: float
+    error_dph: np.ndarray  # block targets: measured block means minus the reference
+    fit_dph: np.ndarray  # the model's prediction for each block
+
+    @property
+    def before(self) -> ErrorStats:
+        """Table 3's "before": the block errors about each run's mean (turn-on bias is not thermal)."""
+        return ErrorStats.about_run_means(self.error_dph, self.data.groups)
+
+    @property
+    def after(self) -> ErrorStats:
+        return ErrorStats.about_run_means(self.error_dph - self.fit_dph, self.data.groups)
+
+
+def prepare(runs: list[Run], config: TrainConfig, min_warmup_s: float = 0.0) -> tuple[TrainingSet, float]:
+    """Block rows of the runs and the reference rate; shared by every method of a comparison."""
+    data = training_set(runs, config.inputs, config.block_s, min_warmup_s)
+    reference = float(np.mean(data.rate_dph)) if config.reference == "mean" else float(config.reference)
+    return data, reference
+
+
+def train(runs: list[Run], config: TrainConfig, prepared: tuple[TrainingSet, float] | None = None) -> Trained:
+    """Fit `config.method` to the runs and return the validated model."""
+    data, reference = prepared or prepare(runs, config)
+    error = data.rate_dph - reference
+    options = options_for_inputs(config.fit, config.inputs)
+    fitted = fit(config.method, data.x, error, data.groups, options)
+    _name_coil_temperature(fitted, config.inputs)
+    created = dt.datetime.now(dt.timezone.utc).replace(microsecond=0).isoformat()
+    metrics = {
+        "train_before": ErrorStats.about_run_means(error, data.groups).to_dict(),
+        "cv_rmse_dph": fitted.cv_rmse_dph,
+    }
+    document = modelfile.document(
+        name=config.name or f"{config.method}-{created[:10]}",
+        method=config.method,
+        inputs=config.inputs,
+        x_mean=fitted.x_mean,
+        x_scale=fitted.x_scale,
+        y_mean=fitted.y_mean,
+        y_scale=fitted.y_scale,
+        domain_min=data.domain_min,
+        domain_max=data.domain_max,
+        params=fitted.params,
+        reference_dph=reference,
+        training={
+            "runs": data.runs,
+            "rate_hz": float(np.median([run["rate_hz"] for run in data.runs])),
+            "block_s": config.block_s,
+            "block_samples": [block_samples(config.block_s, run["rate_hz"]) for run in data.runs],
+            "reference": config.reference if config.reference == "mean" else "value",
+            "fitness": config.fit.fitness if config.method == "pso-svr" else None,
+            "hyperparameters": _json_ready(fitted.hyperparameters),
+            "fitness_history_dph": [float(value) for value in fitted.fitness_history],
+        },
+        metrics=metrics,
+        created_utc=created,
+        domain_guard=domain_guard_document(data, error, fitted, config.fit) if config.domain_guard else None,
+    )
+    try:
+        model = modelfile.from_document(document)
+    except modelfile.ModelOutputError as error:  # fitted here, so not hostile: a polynomial that extrapolates
+        raise InputError(
+            f"the fitted {config.method} model reaches {error.value_dph:.3g} deg/h within its calibrated input range "
+            f"(beyond the {modelfile.MAX_COMP_DPH:g} deg/h any gyro could need): a polynomial extrapolating between "
+            "inputs; use the default --method pso-svr, or a lower --degree or --poly-terms temp") from None
+    fit_dph, _ = model.predict(data.x)
+    metrics["train_after"] = ErrorStats.about_run_means(error - fit_dph, data.groups).to_dict()
+    return Trained(document, model, fitted, data, reference, error, fit_dph)
+
+
+def _name_coil_temperature(fitted: Fitted, specs: tuple[InputSpec, ...]) -> None:
+    """Replace the coil trend's mix (weights of the scaled inputs) by what it means in degrees C, e.g.
+    '0.86 lag@300 + 0.14 lag@950', for the fit line, the report and the model file's training section."""
+    mix = fitted.hyperparameters.pop("coil_mix", None)
+    if mix is None:
+        return
+    raw = np.asarray(mix) / fitted.x_scale
+    raw = raw / raw.sum()
+    fitted.hyperparameters["coil_temperature"] = " + ".join(
+        f"{weight:.2f} {spec.short}" for weight, spec in zip(raw, specs) if weight > 0)
+
+
+def options_for_inputs(options: FitOptions, specs: tuple[InputSpec, ...]) -> FitOptions:
+    """`options` with the column roles of these inputs: temperatures, static columns, columns clamped together."""
+    return dataclasses.replace(options, temperature_columns=temperature_columns(specs),
+                               static_columns=static_columns(specs), shifted_columns=shifted_columns(specs))  # fmt: skip
+
+
+def domain_guard_document(data: TrainingSet, error: np.ndarray, fitted: Fitted, options: FitOptions) -> dict[str, Any]:
+    """The model file's `domain_guard`: the calibration blocks in the model's scaled units, the threshold and
+    the linear fallback (fitted to the same blocks, so it shares the model's scaling exactly)."""
+    linear = fitted if fitted.method == "linear" else fit("linear", data.x, error, data.groups, options)
+    same = all(np.array_equal(a, b) for a, b in (
+        (linear.x_mean, fitted.x_mean), (linear.x_scale, fitted.x_scale),
+        (linear.y_mean, fitted.y_mean), (linear.y_scale, fitted.y_scale)))  # fmt: skip
+    if not same:
+        raise AssertionError("the linear fallback must share the model's scaling")
+    points = domain.thin((data.x - fitted.x_mean) / fitted.x_scale)
+    samples = None if data.x_samples is None else (data.x_samples - fitted.x_mean) / fitted.x_scale
+    return {
+        "points": points.tolist(),
+        "threshold": domain.choose_threshold(points, samples),
+        "fallback": {"method": "linear", "params": linear.params},
+    }
+
+
+def _json_ready(values: dict[str, Any]) -> dict[str, Any]:
+    return {key: value.item() if isinstance(value, np.generic) else value for key, value in values.items()}

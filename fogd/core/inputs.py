@@ -1,0 +1,281 @@
+"""The model's inputs (temperature, temperature rates, lagged temperatures) and how they are computed,
+streaming and in batch.
+
+An `InputSpec` is what a model file stores about one input, so that serving computes exactly what training
+computed. `InputBank` is the streaming form (O(1) per sample whatever the window lengths and time constants,
+any chunk size) and `inputs_batch` the batch form; both give the same floats bit for bit (the rate estimator
+works in exact integer sums, the lag filter runs one recurrence in both forms).
+
+Kinds: `temp_c` (the held temperature), `temp_rate_cps` (eq. 16 with its window settings; several windows
+may be used at once) and `temp_lag_c` (a first-order lag of the temperature with time constant `tau_s`,
+fogd.core.lag). `parse_inputs` reads the `fogd-train --inputs` syntax, e.g. `temp,rate@50,rate@300,lag@600`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fogd.core.estimator import EstimatorSettings, TempRateEstimator, temp_rate_batch
+from fogd.core.lag import MAX_TAU_S, LagFilter
+
+TEMP = "temp_c"
+TEMP_RATE = "temp_rate_cps"
+TEMP_LAG = "temp_lag_c"
+KINDS = (TEMP, TEMP_RATE, TEMP_LAG)
+INPUTS_SYNTAX = (
+    "comma-separated inputs: 'temp' (temperature, C), 'rate@W' (eq. 16 temperature rate over a W s window, "
+    "with --average-s and --step-s), 'lag@TAU' (temperature through a first-order lag of time constant TAU s, a "
+    "stand-in for the coil temperature), 'lags@TAU,TAU,...' or 'lags@FIRST..LAST/COUNT' (a bank of such lags, "
+    "the range log-spaced); e.g. temp,rate@50,rate@300,lag@600 or lags@30..3000/5"
+)
+MAX_INPUTS = 16
+
+
+@dataclass(frozen=True)
+class InputSpec:
+    """One model input: `temp_c`, `temp_rate_cps` with its eq. 16 estimator settings, or `temp_lag_c` with
+    its time constant `tau_s`."""
+
+    kind: str
+    estimator: EstimatorSettings | None = None
+    tau_s: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"unknown input {self.kind!r}; known inputs: {', '.join(KINDS)}")
+        if (self.kind == TEMP_RATE) != (self.estimator is not None):
+            raise ValueError(f"input {self.kind!r}: estimator settings go with {TEMP_RATE} only")
+        if (self.kind == TEMP_LAG) != (self.tau_s is not None):
+            raise ValueError(f"input {self.kind!r}: a time constant tau_s goes with {TEMP_LAG} only")
+        if self.tau_s is not None and not 0 < self.tau_s <= MAX_TAU_S:
+            raise ValueError(f"lag time constant must be in (0, {MAX_TAU_S:g}] s, got {self.tau_s}")
+
+    @property
+    def label(self) -> str:
+        """A short unique name, e.g. 'temp_rate_cps@50s' or 'temp_lag_c@600s'."""
+        if self.estimator is not None:
+            return f"{self.kind}@{self.estimator.window_s:g}s"
+        if self.tau_s is not None:
+            return f"{self.kind}@{self.tau_s:g}s"
+        return self.kind
+
+    @property
+    def short(self) -> str:
+        """The `--inputs` spelling: temp, rate@50, lag@600."""
+        if self.estimator is not None:
+            return f"rate@{self.estimator.window_s:g}"
+        if self.tau_s is not None:
+            return f"lag@{self.tau_s:g}"
+        return "temp"
+
+    def to_dict(self) -> dict:
+        if self.estimator is not None:
+            return {"kind": self.kind, **self.estimator.to_dict()}
+        if self.tau_s is not None:
+            return {"kind": self.kind, "tau_s": float(self.tau_s)}
+        return {"kind": self.kind}
+
+
+def parse_inputs(text: str, average_s: float = 0.5, step_s: float = 0.0) -> tuple[InputSpec, ...]:
+    """Inputs from the `--inputs` syntax (INPUTS_SYNTAX); raises ValueError naming the bad item.
+
+    A lag bank (`lags@...`) is the same as its lags given one by one: each is an ordinary `temp_lag_c` input,
+    so the model file and the streaming code need nothing new; a bank's later time constants are the bare
+    numbers that follow it (`lags@300,1000,3000`)."""
+    specs: list[InputSpec] = []
+    in_bank = False
+    for item in (part.strip() for part in text.split(",")):
+        name, _, value = item.partition("@")
+        bank_tau_s = _float_or_none(name) if in_bank and not value else None
+        try:
+            if bank_tau_s is not None:
+                new = [InputSpec(TEMP_LAG, tau_s=bank_tau_s)]
+            elif name == "lags" and value:
+                new = [InputSpec(TEMP_LAG, tau_s=tau_s) for tau_s in _bank_taus(value)]
+            else:
+                new = [_single(name, value, average_s, step_s)]
+        except ValueError as error:
+            raise ValueError(f"--inputs item {item!r}: {error}") from None
+        in_bank = name == "lags" or bank_tau_s is not None
+        for spec in new:
+            if spec in specs:
+                raise ValueError(f"--inputs item {item!r} gives {spec.short} twice")
+            specs.append(spec)
+    if not 1 <= len(specs) <= MAX_INPUTS:
+        raise ValueError(f"--inputs needs 1 to {MAX_INPUTS} inputs (a lag bank counts each of its lags)")
+    return tuple(specs)
+
+
+def _single(name: str, value: str, average_s: float, step_s: float) -> InputSpec:
+    if name == "temp" and not value:
+        return InputSpec(TEMP)
+    if name == "rate" and value:
+        spec = InputSpec(TEMP_RATE, EstimatorSettings(float(value), average_s, step_s))
+        if not 2 * average_s <= spec.estimator.window_s <= 86400:
+            raise ValueError(f"window must be from 2 * average_s ({2 * average_s:g} s) to 86400 s")
+        return spec
+    if name == "lag" and value:
+        return InputSpec(TEMP_LAG, tau_s=float(value))
+    raise ValueError("expected temp, rate@SECONDS, lag@SECONDS or lags@SECONDS,SECONDS,... / lags@FIRST..LAST/COUNT")
+
+
+def _bank_taus(value: str) -> list[float]:
+    """`FIRST..LAST/COUNT` as COUNT log-spaced time constants (rounded to 3 significant digits), or one."""
+    if ".." not in value:
+        return [float(value)]
+    bounds, _, count_text = value.partition("/")
+    first_text, _, last_text = bounds.partition("..")
+    first, last = float(first_text), float(last_text)
+    count = int(count_text) if count_text else 0
+    if not (0 < first < last) or count < 2:
+        raise ValueError("a lag range is FIRST..LAST/COUNT with 0 < FIRST < LAST and COUNT >= 2, e.g. 30..3000/5")
+    return [float(f"{tau_s:.3g}") for tau_s in np.geomspace(first, last, count)]
+
+
+def _float_or_none(text: str) -> float | None:
+    try:
+        return float(text)
+    except ValueError:
+        return None
+
+
+def describe_inputs(specs: tuple[InputSpec, ...]) -> str:
+    """The `--inputs` spelling of a whole input set (two or more lags in a row as one `lags@` bank)."""
+    parts: list[str] = []
+    index = 0
+    while index < len(specs):
+        end = index
+        while end < len(specs) and specs[end].kind == TEMP_LAG:
+            end += 1
+        if end - index >= 2:
+            parts.append("lags@" + ",".join(f"{spec.tau_s:g}" for spec in specs[index:end]))
+            index = end
+        else:
+            parts.append(specs[index].short)
+            index += 1
+    return ",".join(parts)
+
+
+def default_inputs(estimator: EstimatorSettings | None = None) -> tuple[InputSpec, ...]:
+    """The paper's inputs: temperature and its eq. 16 rate."""
+    return (InputSpec(TEMP), InputSpec(TEMP_RATE, estimator or EstimatorSettings()))
+
+
+def temperature_columns(specs: tuple[InputSpec, ...]) -> tuple[int, ...]:
+    """The inputs that are temperatures (the sensor's, or lagged), as opposed to temperature rates."""
+    return tuple(i for i, spec in enumerate(specs) if spec.kind in (TEMP, TEMP_LAG))
+
+
+STATIC_MAX_TAU_S = 1000.0  # temperatures that follow the coil: the sensor's and lags up to this time constant
+# fogd-train's default: the sensor's temperature and a bank of lags from half a minute to the housing's hour.
+# A bank reaching 10,000 s was as good with three calibration runs and far worse with two: the slowest lags
+# hardly move within a run and, with one offset per run, are nearly free (an exploratory least-squares check,
+# not in tools/: held-out drift 1.6-3.9x the noise floor against 1.2-1.8x with paper-train and cooling as the
+# only calibration runs). The sensor's own temperature carries what no lag has: the housing's latest move,
+# which the coil's rate and gradient follow at once (tools/accuracy_table.py --quick, diffusive coil, fine
+# sensor, fast-ramp: 3.10x the floor with the previous default, lags only under the poly trend; 1.37x now).
+DEFAULT_INPUTS_TEXT = "temp,lags@30..3000/5"
+
+
+def static_columns(specs: tuple[InputSpec, ...], max_tau_s: float = STATIC_MAX_TAU_S) -> tuple[int, ...]:
+    """The temperature inputs close enough to the coil's temperature to carry its static nonlinearity: the
+    sensor's own and lags up to `max_tau_s` (slower lags stand for the long memory of the housing); if there
+    is none, the fastest lag."""
+    columns = tuple(i for i, spec in enumerate(specs)
+                    if spec.kind == TEMP or (spec.kind == TEMP_LAG and spec.tau_s <= max_tau_s))  # fmt: skip
+    if columns:
+        return columns
+    lags = [i for i, spec in enumerate(specs) if spec.kind == TEMP_LAG]
+    return (min(lags, key=lambda i: specs[i].tau_s),) if lags else ()
+
+
+def shifted_columns(specs: tuple[InputSpec, ...]) -> tuple[int, ...]:
+    """The temperature inputs that the calibrated-domain clamp moves together (the fastest first), for models
+    with lagged temperatures; () for the others, whose inputs are clamped one by one.
+
+    A lag bank's slow lags cover a narrower range in calibration than the sensor does (a 3-hour lag never
+    reaches the end of a 45-minute soak), so clamping each lag to its own range would bend the differences
+    between lags, which carry the coil's thermal state, wherever a slow lag steps outside. Moving them all by
+    the fastest temperature's clamp keeps the state and stops only the static extrapolation."""
+    if not any(spec.kind == TEMP_LAG for spec in specs):
+        return ()
+    columns = temperature_columns(specs)
+    speed = lambda i: 0.0 if specs[i].kind == TEMP else specs[i].tau_s  # noqa: E731
+    return tuple(sorted(columns, key=speed))
+
+
+def clamp_rows(x: np.ndarray, low: np.ndarray, high: np.ndarray, shifted: tuple[int, ...]) -> np.ndarray:
+    """Input rows clamped to the calibrated domain [low, high]: rates column by column, and the `shifted`
+    temperature columns moved together by the first one's clamp (`shifted_columns`)."""
+    out = np.clip(x, low, high)
+    if shifted:
+        first = shifted[0]
+        shift = out[:, first] - x[:, first]
+        out[:, shifted] = x[:, shifted] + shift[:, None]
+    return out
+
+
+def warmup_samples(specs: tuple[InputSpec, ...], rate_hz: float) -> int:
+    """Samples before every input is real (the longest estimator window; a lag starts in steady state at the
+    first temperature and has no warm-up)."""
+    windows = [spec.estimator.samples(rate_hz)[0] for spec in specs if spec.estimator is not None]
+    return max(windows, default=1) - 1
+
+
+def inputs_batch(temp_c: np.ndarray, specs: tuple[InputSpec, ...], rate_hz: float) -> np.ndarray:
+    """All inputs for a whole run of finite temperatures: an (n, len(specs)) array."""
+    temp_c = np.asarray(temp_c, dtype=np.float64)
+    columns = [_column_batch(temp_c, spec, rate_hz) for spec in specs]
+    return np.column_stack(columns) if columns else np.empty((temp_c.size, 0))
+
+
+def _column_batch(temp_c: np.ndarray, spec: InputSpec, rate_hz: float) -> np.ndarray:
+    if spec.estimator is not None:
+        return temp_rate_batch(temp_c, spec.estimator, rate_hz)
+    if spec.tau_s is not None:
+        return LagFilter(spec.tau_s, rate_hz).update(temp_c)
+    return temp_c
+
+
+def _streaming(spec: InputSpec, rate_hz: float) -> TempRateEstimator | LagFilter | None:
+    if spec.estimator is not None:
+        return TempRateEstimator(spec.estimator, rate_hz)
+    if spec.tau_s is not None:
+        return LagFilter(spec.tau_s, rate_hz)
+    return None
+
+
+class InputBank:
+    """All inputs, streaming: feed finite temperatures in chunks, get the (k, d) input rows back."""
+
+    def __init__(self, specs: tuple[InputSpec, ...], rate_hz: float) -> None:
+        self.specs = specs
+        self.rate_hz = float(rate_hz)
+        self._estimators = [_streaming(spec, rate_hz) for spec in specs]
+        self.warmup = warmup_samples(specs, rate_hz)
+        self.count = 0
+
+    @property
+    def warm(self) -> bool:
+        return self.count > self.warmup
+
+    def reset(self) -> None:
+        for estimator in self._estimators:
+            if estimator is not None:
+                estimator.reset()
+        self.count = 0
+
+    def update(self, temp_c: np.ndarray) -> np.ndarray:
+        temp_c = np.atleast_1d(np.asarray(temp_c, dtype=np.float64))
+        out = np.empty((temp_c.size, len(self.specs)))
+        for column, estimator in enumerate(self._estimators):
+            out[:, column] = temp_c if estimator is None else estimator.update(temp_c)
+        self.count += temp_c.size
+        return out
+
+    def update_one(self, temp_c: float) -> tuple[float, ...]:
+        """Feed one finite temperature; its input row as Python floats, the same floats `update` gives."""
+        self.count += 1
+        return tuple(temp_c if estimator is None else estimator.update_one(temp_c) for estimator in self._estimators)

@@ -1,7 +1,0 @@
-"""Fitting the temperature-error models (linear, 5th-order LS polynomial, RBF-NN, PSO-SVR) and the swarm."""
-
-from fogd.models.fit import FITNESSES, METHODS, FitOptions, Fitted, fit
-from fogd.models.folds import folds
-from fogd.models.pso import PsoResult, pso_minimize
-
-__all__ = ["FITNESSES", "METHODS", "FitOptions", "Fitted", "PsoResult", "fit", "folds", "pso_minimize"]

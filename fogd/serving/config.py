@@ -1,0 +1,298 @@
+"""The daemon's settings: the table of every key (type, unit, default, range), where the config file is looked
+for, reading and validating it, and merging defaults < config file < command line. Every problem is a
+`ConfigError` (exit 78) whose one line names the file, the key and the reason; nothing here raises anything else.
+
+The config file is YAML with the same keys as the long options (underscores for dashes). Without `--config`
+the daemon reads `$FOGD_CONFIG_DIR/<instance>.yaml` (for `--instance NAME`) or else `$FOGD_CONFIG_DIR/fogd.yaml`
+when one exists; `FOGD_CONFIG_DIR` defaults to /etc/fogd. A file named with `--config` must exist.
+"""
+
+from __future__ import annotations
+
+import argparse
+import difflib
+import ipaddress
+import math
+import os
+import reprlib
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import yaml
+
+from fogd import protocols
+from fogd.core.atomic import read_regular
+from fogd.core.numbers import number_in, whole_number
+from fogd.errors import ConfigError, describe_os_error
+
+CONFIG_DIR = "/etc/fogd"
+CONFIG_DIR_ENV = "FOGD_CONFIG_DIR"
+DEFAULT_INSTANCE = "fogd"
+DEFAULT_MODEL = "/var/lib/fogd/model.json"
+RUNTIME_DIR = "/run/fogd"
+MAX_CONFIG_BYTES = 1 << 20
+MAX_YAML_NODES = 10_000
+MAX_SCALAR_CHARS = 1024
+AXES = ("x", "y", "z")
+OUT_FORMATS = ("same", "fogd", "csv", "jsonl")
+NONE_WORDS = ("none", "off")  # for optional paths on the command line
+
+
+def _text(text: str) -> str:
+    if not text:
+        raise argparse.ArgumentTypeError("must not be empty")
+    if not text.isprintable():  # a newline in a path or name would forge log lines and systemd fields
+        raise argparse.ArgumentTypeError(f"{_show(text)} holds a control character")
+    return text
+
+
+def _optional_jump(text: str) -> float | None:
+    return None if text.lower() in NONE_WORDS else number_in(0.0, math.inf, "deg/h", low_open=True)(text)
+
+
+def _optional_path(text: str) -> str | None:
+    return None if text.lower() in NONE_WORDS else _text(text)
+
+
+def _address(text: str) -> str:
+    try:
+        return str(ipaddress.ip_address(text))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an IP address (e.g. 127.0.0.1 or ::1)") from None
+
+
+def _optional_port(text: str) -> int | None:
+    if text.lower() in NONE_WORDS:
+        return None
+    port = whole_number(1)(text)
+    if port > 65535:
+        raise argparse.ArgumentTypeError(f"{text!r} is outside 1..65535")
+    return port
+
+
+def _baud(text: str) -> int:
+    baud = whole_number(50)(text)
+    if baud > 12_000_000:
+        raise argparse.ArgumentTypeError(f"{text!r} is outside 50..12000000")
+    return baud
+
+
+@dataclass(frozen=True)
+class Option:
+    """One setting: the command-line conversion (text -> value), its kind in the config file ('number',
+    'text' or 'choice'), default, unit and help."""
+
+    key: str
+    convert: Callable[[str], Any]
+    kind: str
+    default: Any
+    help: str
+    unit: str = ""
+    metavar: str | None = None
+    choices: tuple[str, ...] | None = None
+    reloadable: bool = False  # applied by SIGHUP without a restart
+
+
+OPTIONS = (
+    Option("port", _text, "text", None, "serial port the FOG is on, e.g. /dev/ttyUSB0 (required unless --demo)",
+           metavar="PATH"),
+    Option("baud", _baud, "number", 921600, "baud rate of the port, and of --out when it is a serial port "
+           "(50..12000000; default: %(default)s)", "baud", "BAUD"),
+    Option("protocol", _text, "choice", "kvh-a", "wire protocol of the port (default: %(default)s)",
+           choices=tuple(protocols.names())),
+    Option("model", _text, "text", DEFAULT_MODEL, f"model file from fogd-train (default: {DEFAULT_MODEL}; with "
+           "--demo the bundled demo model)", metavar="PATH", reloadable=True),
+    Option("out", _text, "text", "-", "where compensated frames go: '-' stdout, a file or serial/pty device path, "
+           "or pty:PATH (fogd makes a pty and links PATH to it) (default: '-' when stdout is a terminal; "
+           "required otherwise, as under systemd)", metavar="SINK"),
+    Option("out_format", _text, "choice", "same", "output format: 'same' re-encodes the input protocol with the "
+           "compensated rate and a fresh CRC; 'fogd' fogd compensated-output frames; 'csv' fogd-replay's columns; "
+           "'jsonl' one JSON object per sample (default: %(default)s)", choices=OUT_FORMATS),
+    Option("rate_hz", number_in(0.0, 100_000.0, "Hz", low_open=True), "number", 1000.0, "FOG sample rate, for the "
+           "temperature-rate estimator and for output time where the protocol has no timestamp (KVH Format A has "
+           "none) (0..100000 Hz; default: %(default)s)", "Hz", "HZ"),
+    Option("axis", _text, "choice", "z", "gyro axis the model compensates; the other axes pass through untouched "
+           "(default: %(default)s)", choices=AXES),
+    Option("temp_stale_s", number_in(0.0, 3600.0, "s", low_open=True), "number", 2.0, "flag samples TEMP_STALE "
+           "when the newest temperature arrived more than this long ago (0..3600 s; default: %(default)s)", "s", "S",
+           reloadable=True),
+    Option("status_interval_s", number_in(0.1, 86400.0, "s"), "number", 10.0, "seconds between one-line status "
+           "logs (0.1..86400 s; default: %(default)s)", "s", "S", reloadable=True),
+    Option("duration_s", number_in(0.0, math.inf, "s", low_open=True), "number", None, "stop after this many "
+           "seconds (default: run until SIGTERM/SIGINT)", "s", "S"),
+    Option("stats_file", _optional_path, "path", "auto", "JSON stats file rewritten atomically every second, read "
+           f"by 'fogd --status'; 'auto': {RUNTIME_DIR}/<instance>.json when {RUNTIME_DIR} exists, else none; "
+           "'none' disables it (default: %(default)s)", metavar="PATH"),
+    Option("metrics_port", _optional_port, "port", None, "serve Prometheus text metrics on this TCP port "
+           "(1..65535; default: off)", metavar="PORT"),
+    Option("max_rate_jump_dph", _optional_jump, "port", None, "protocol ascii: flag a rate (axis invalid, "
+           "counted as implausible) that jumps by more than this from both the previous and the last accepted "
+           "rate, on lines without a checksum (DSP-3000 lines always) (deg/h, above 0; default: off)", "deg/h",
+           "DPH", reloadable=False),
+    Option("metrics_address", _address, "text", "127.0.0.1", "address the metrics endpoint binds to "
+           "(default: %(default)s; anything else exposes it beyond this machine)", metavar="ADDR"),
+)
+OPTION_BY_KEY = {option.key: option for option in OPTIONS}
+
+
+def config_dir() -> str:
+    return os.environ.get(CONFIG_DIR_ENV) or CONFIG_DIR
+
+
+def default_config_path(instance: str | None) -> str | None:
+    """The config file used without --config: <dir>/<instance>.yaml, else <dir>/fogd.yaml, if one exists."""
+    names = ([f"{instance}.yaml"] if instance and instance != DEFAULT_INSTANCE else []) + [f"{DEFAULT_INSTANCE}.yaml"]
+    for name in names:
+        path = os.path.join(config_dir(), name)
+        if os.path.exists(path):
+            return path
+    return None
+
+
+def load(path: str) -> dict[str, Any]:
+    """Settings from a YAML file, each checked like its command-line option; ConfigError names the key."""
+    try:
+        text = read_regular(path, MAX_CONFIG_BYTES)
+    except OSError as error:
+        raise ConfigError(f"cannot read config {describe_os_error(error)}") from None
+    if len(text) > MAX_CONFIG_BYTES:
+        raise ConfigError(f"{path}: larger than {MAX_CONFIG_BYTES // 1024} KiB; not a fogd config")
+    try:
+        document = yaml.load(text, Loader=_ConfigLoader)  # noqa: S506 (a SafeLoader, bounded)
+    except ValueError as error:  # Python's own limits (a huge integer) surfacing through the constructor
+        raise ConfigError(f"{path}: not a fogd config ({str(error)[:80]})") from None
+    except yaml.YAMLError as error:
+        where = getattr(error, "problem_mark", None)
+        line = f":{where.line + 1}" if where is not None else ""
+        raise ConfigError(f"{path}{line}: not valid YAML ({getattr(error, 'problem', None) or error})") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: nested too deeply; not a fogd config") from None
+    if document is None:
+        return {}
+    if not isinstance(document, dict):
+        raise ConfigError(f"{path}: expected a mapping of settings (key: value), found {type(document).__name__}")
+    settings = {}
+    for key, value in document.items():
+        option = OPTION_BY_KEY.get(key) if isinstance(key, str) else None
+        if option is None:
+            raise ConfigError(f"{path}: unknown key {str(key)[:40]!r}{_did_you_mean(key)}; known keys: "
+                              f"{', '.join(OPTION_BY_KEY)}")  # fmt: skip
+        settings[key] = _value(path, option, value)
+    return settings
+
+
+def _did_you_mean(key: Any) -> str:
+    """' (did you mean out_format?)' for a key spelt with dashes, like the long option, or mistyped."""
+    if not isinstance(key, str):
+        return ""
+    underscored = key.strip().lstrip("-").replace("-", "_").lower()
+    if underscored in OPTION_BY_KEY:
+        return f" (did you mean {underscored}? keys use underscores where options use dashes)"
+    close = difflib.get_close_matches(underscored, OPTION_BY_KEY, n=1, cutoff=0.75)
+    return f" (did you mean {close[0]}?)" if close else ""
+
+
+def _value(path: str, option: Option, value: Any) -> Any:
+    where = f"{path}: key {option.key!r}"
+    if value is None:
+        if option.default is None or option.kind in ("path", "port"):
+            return None
+        raise ConfigError(f"{where} needs a value (default: {option.default})")
+    if option.kind in ("number", "port"):
+        # YAML 1.1 reads 1e3 as a string: accept text that is a number, refuse everything else
+        ok_type = isinstance(value, (int, float, str)) and not isinstance(value, bool)
+        expected = "a number"
+        if isinstance(value, str):
+            try:
+                float(value)
+            except ValueError:
+                ok_type = option.kind == "port" and value.lower() in NONE_WORDS
+    else:
+        ok_type = isinstance(value, str)
+        expected = "a string"
+    if not ok_type:
+        raise ConfigError(f"{where} must be {expected}, found {_show(value)}")
+    if option.choices is not None and value not in option.choices:
+        raise ConfigError(f"{where} is {_show(value)}; valid values: {', '.join(option.choices)}")
+    try:
+        return option.convert(str(value))
+    except (argparse.ArgumentTypeError, ValueError) as error:
+        raise ConfigError(f"{where}: {error}") from None
+
+
+def _show(value: Any) -> str:
+    text = _SHORT.repr(value)  # never the whole value: it may be huge
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+_SHORT = reprlib.Repr()
+_SHORT.maxstring = _SHORT.maxother = _SHORT.maxlong = 40
+_SHORT.maxlevel = 2
+
+
+class _ConfigLoader(yaml.SafeLoader):
+    """YAML's safe loader, bounded: no aliases (an alias bomb expands a few lines into gigabytes), at most
+    MAX_YAML_NODES nodes, scalars of at most MAX_SCALAR_CHARS characters, no key given twice."""
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        if self.check_event(yaml.AliasEvent):
+            raise yaml.composer.ComposerError(None, None, "aliases (*name) are not allowed in a fogd config",
+                                              self.peek_event().start_mark)  # fmt: skip
+        self._nodes = getattr(self, "_nodes", 0) + 1
+        if self._nodes > MAX_YAML_NODES:
+            raise yaml.composer.ComposerError(None, None, f"more than {MAX_YAML_NODES} values; not a fogd config",
+                                              self.peek_event().start_mark)  # fmt: skip
+        node = super().compose_node(parent, index)
+        if isinstance(node, yaml.ScalarNode) and len(node.value) > MAX_SCALAR_CHARS:
+            raise yaml.composer.ComposerError(None, None, f"a value longer than {MAX_SCALAR_CHARS} characters",
+                                              node.start_mark)  # fmt: skip
+        return node
+
+    def construct_mapping(self, node: Any, deep: bool = False) -> Any:
+        seen: set[str] = set()
+        for key_node, _ in node.value:
+            if isinstance(key_node, yaml.ScalarNode):
+                if key_node.value in seen:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f"key {key_node.value[:40]!r} appears twice", key_node.start_mark
+                    )
+                seen.add(key_node.value)
+        return super().construct_mapping(node, deep=deep)
+
+
+def merge(config: dict[str, Any], command_line: dict[str, Any]) -> dict[str, Any]:
+    """Defaults, overridden by the config file, overridden by the command line."""
+    settings = {option.key: option.default for option in OPTIONS}
+    settings.update(config)
+    settings.update(command_line)
+    return settings
+
+
+def check(settings: dict[str, Any], *, demo: bool) -> None:
+    """Cross-key checks and the model's presence; raises ConfigError naming the key."""
+    if settings["port"] is None and not demo:
+        raise ConfigError("key 'port' is not set: give --port PATH (or port: in the config), or try --demo")
+    if settings["protocol"] == "ascii" and settings["axis"] != "z":
+        raise ConfigError("key 'axis': protocol ascii carries the z axis only; use axis z")
+    model = settings["model"]
+    try:
+        os.stat(model)
+    except PermissionError:
+        raise ConfigError(f"key 'model': {model}: permission denied (fogd's user must be able to read it and "
+                          "its directories)") from None  # fmt: skip
+    except OSError:
+        raise ConfigError(
+            f"key 'model': {model}: no such file (train one with fogd-train and install it there, or set model:)"
+        ) from None
+
+
+def instance_stats_path(instance: str) -> str:
+    """Where a daemon named `instance` writes its stats by default: <runtime dir>/<instance>.json."""
+    return os.path.join(RUNTIME_DIR, f"{instance}.json")
+
+
+def stats_path(setting: str | None, instance: str) -> str | None:
+    """The stats file to write: the setting, or for 'auto' <runtime dir>/<instance>.json if that dir exists."""
+    if setting != "auto":
+        return setting
+    return instance_stats_path(instance) if os.path.isdir(RUNTIME_DIR) else None

@@ -1,0 +1,569 @@
+"""The daemon's compensation loop and lifecycle: it pops batches of samples from the ring the reader fills,
+holds the latest temperature for each rate sample, runs the shared `Compensator` once per batch on the
+configured axis, hands the encoded output to the writer thread, watches both threads, logs a periodic status
+line, and on stop drains the ring and flushes the writer.
+
+Temperature may arrive in its own frames at its own rate: each rate sample gets the newest temperature that
+arrived before it, flagged TEMP_STALE when that temperature is older (in receive time) than `temp_stale_s`.
+Output time is the device time where the protocol carries one, else sample count / `rate_hz`.
+
+Service duties live here too, all on the loop's own thread so nothing races the compensator: signals only set
+flags (`stop`, `request_reload`, `request_counters`); a reload is prepared (config read, model validated) on a
+helper thread and swapped in between two batches, so no frame is lost or compensated twice. The estimator
+state survives a swap when the new model has the same inputs (same estimator settings), else it restarts
+with a warm-up (logged). systemd is told READY=1, a STATUS= summary, and WATCHDOG=1 only while the reader
+thread is alive and coming round its loop: a hung reader stops the pings and systemd restarts fogd.
+"""
+
+from __future__ import annotations
+
+import gc
+import json
+import logging
+import math
+import os
+import sys
+import threading
+import time
+from collections import deque
+from dataclasses import asdict, dataclass, replace
+from typing import Callable
+
+import numpy as np
+
+from fogd import __version__
+from fogd.core.compensator import Compensator
+from fogd.core.estimator import SCALAR_CHUNK
+from fogd.core.flags import Flag, describe
+from fogd.core.frozen import FrozenModel
+from fogd.core.modelfile import check_rate, printable
+from fogd.errors import FogdError
+from fogd.protocols.base import Frame
+from fogd.serving.outputs import Chunk, Formatter, OutputBatch, Writer, split_batch
+from fogd.serving.reader import Reader
+from fogd.serving.ring import RATE_KINDS, TEMP_KINDS, Ring
+from fogd.serving.sdnotify import Notifier
+from fogd.serving.statsfile import write_stats
+
+log = logging.getLogger("fogd.daemon")
+status_log = logging.getLogger("fogd.status")
+
+RING_CAPACITY = 1 << 14  # frames: 0.8 s at 20 kHz, 3.3 s at a 1775's 5 kHz (about 400 bytes each as Python objects)
+MAX_BATCH = 1024  # samples per compensation step, which bounds a chunk's size in the writer's queue
+IDLE_WAIT_S = 0.05
+# How long a thread that wants the GIL waits for the one computing (Python's default is 5 ms): the reader
+# must get it back within the time a pty's or UART's buffer takes to fill at full rate (4 KB at 80,000
+# frames/s is 1.4 ms), or the sender is throttled and frames pile up; between frames at real rates no thread
+# computes, so nothing changes there.
+SWITCH_INTERVAL_S = 0.0005
+DUTIES_S = 0.01  # status, signals, reloads, thread watch, watchdog: checked at most this often
+FLUSH_TIMEOUT_S = 1.5
+RESTART_DELAY_S = 0.5
+NOTIFY_STATUS_S = 2.0  # how often systemd's STATUS= line is refreshed
+STATS_EVERY_S = 1.0
+HISTORY_POINTS = 60  # the stats file's history: the latest sample at each of the last 60 stats writes (a minute)
+RELOAD_TIMEOUT_S = 10.0  # a reload still preparing after this long is stuck (a FIFO, a hung filesystem)
+READER_STALL_S = 2.0  # a reader that has not come round its loop for this long is hung (its waits are <= 0.2 s)
+HISTORY_FIELDS = ("uptime_s", "temp_c", "temp_rate_cps", "comp_dph", "flags")
+NOT_DROPS = ("frames_ok", "other_frames", "frame_bytes", "seq_resets")  # lexer counters that count no loss
+_OUT_OF_DOMAIN, _CLAMPED = int(Flag.OUT_OF_DOMAIN), int(Flag.CLAMPED)
+
+
+@dataclass
+class RateSamples:
+    """The rate frames of a batch, column by column (Python lists, one entry per rate frame)."""
+
+    rows: list[int]  # index of each rate frame in the batch
+    rate_dph: list[float]  # the compensated axis
+    usable: list[bool]  # the axis present and valid
+    device_s: list[float | None]  # the device's time, if the protocol has one
+    temp_c: list[float]  # the newest temperature received at or before the frame (NaN: none yet)
+    temp_age_s: list[float]  # how long before the frame that temperature arrived
+
+
+class TemperatureHold:
+    """Each rate frame's temperature: the newest one that arrived at or before it, carried across batches, and
+    its age in receive time (a rate sample with no temperature since the start ages from the start)."""
+
+    def __init__(self) -> None:
+        self.temp_c = math.nan
+        self.rx_s = time.monotonic()
+
+    def rate_samples(self, frames: list[Frame], t_rx_s: list[float], axis: int) -> RateSamples:
+        """The frames that carry a rate, as columns for the compensator, each with the temperature held for it."""
+        samples = RateSamples([], [], [], [], [], [])
+        rows, rates, usable, device_s = samples.rows, samples.rate_dph, samples.usable, samples.device_s
+        temps_c, ages_s = samples.temp_c, samples.temp_age_s
+        held_c, held_rx_s = self.temp_c, self.rx_s
+        for index, frame in enumerate(frames):  # one pass, no numpy: usually a single frame
+            kind = frame.kind
+            if kind in TEMP_KINDS and frame.temp_c is not None:
+                held_c, held_rx_s = frame.temp_c, t_rx_s[index]
+            if kind in RATE_KINDS:
+                rows.append(index)
+                rates.append(frame.rate_dph[axis])
+                usable.append(frame.axis_valid[axis] and frame.axis_present[axis])
+                device_s.append(frame.t_s)
+                temps_c.append(held_c)
+                ages_s.append(t_rx_s[index] - held_rx_s)
+        self.temp_c, self.rx_s = held_c, held_rx_s
+        return samples
+
+
+class SampleClock:
+    """Sample times: the device's clock where the protocol has one, else the sample count / rate_hz."""
+
+    def __init__(self, rate_hz: float) -> None:
+        self.rate_hz = rate_hz
+        self.count = 0
+
+    def times(self, device_s: list[float | None]) -> list[float]:
+        first, rate_hz = self.count, self.rate_hz
+        self.count += len(device_s)
+        return [(first + i) / rate_hz if t_s is None or t_s != t_s else t_s for i, t_s in enumerate(device_s)]
+
+
+@dataclass
+class LoopCounters:
+    samples_compensated: int = 0
+    samples_out_of_domain: int = 0  # compensated by the domain guard's linear fallback (OUT_OF_DOMAIN)
+    samples_clamped: int = 0  # with an input clamped to the calibrated range (CLAMPED)
+    reader_deaths: int = 0
+    writer_deaths: int = 0
+    reloads: int = 0
+    reloads_refused: int = 0
+    reloads_stuck: int = 0  # a reload that did not finish within RELOAD_TIMEOUT_S (abandoned, later ones run)
+    records_popped: int = 0  # ring records compensated and encoded (or counted unencodable)
+    frames_unencodable: int = 0  # frames whose values no output encoding could carry (or the model failed on)
+
+
+@dataclass(frozen=True)
+class Reload:
+    """What a SIGHUP may change without a restart (validated before the daemon sees it)."""
+
+    model: FrozenModel
+    temp_stale_s: float
+    status_interval_s: float
+    compensator: Compensator | None = None  # built by the reload thread, so a swap allocates nothing
+
+
+@dataclass
+class Latency:
+    """Seconds from the read that completed a frame to its compensated output being queued for the writer."""
+
+    last_s: float = float("nan")
+    max_s: float = 0.0  # since the last status line
+
+
+@dataclass
+class Latest:
+    """The newest compensated sample, for the status line."""
+
+    rate_dph: float = float("nan")
+    comp_dph: float = float("nan")
+    rate_comp_dph: float = float("nan")
+    temp_c: float = float("nan")
+    temp_rate_cps: float = float("nan")
+    flags: int = 0
+
+
+class Daemon:
+    """Runs reader, compensation loop and writer until `stop()` or `duration_s`; `run()` returns when done."""
+
+    def __init__(
+        self,
+        *,
+        reader: Reader,
+        writer: Writer,
+        formatter: Formatter,
+        model: FrozenModel,
+        rate_hz: float,
+        axis: int,
+        temp_stale_s: float,
+        status_interval_s: float,
+        duration_s: float | None = None,
+        notifier: Notifier | None = None,
+        reload: Callable[[], Reload] | None = None,
+        stats_path: str | None = None,
+        info: dict | None = None,
+    ) -> None:
+        self.reader = reader
+        self.writer = writer
+        self.formatter = formatter
+        self.model = model
+        check_rate(model, rate_hz, model.name)  # before a window's buffers are allocated
+        self.compensator = Compensator(model, rate_hz)
+        self.rate_hz = rate_hz
+        self.axis = axis
+        self.temp_stale_s = temp_stale_s
+        self.status_interval_s = status_interval_s
+        self.duration_s = duration_s
+        self.counters = LoopCounters()
+        self.latest = Latest()
+        self.latency = Latency()
+        self._stop = threading.Event()
+        self.clock = SampleClock(rate_hz)
+        self.temperature = TemperatureHold()
+        self.notifier = notifier or Notifier({})
+        self._reload = reload
+        self.stats_path = stats_path
+        self.info = info or {}  # static facts for the stats file (port, protocol, instance)
+        self.started_s = time.monotonic()
+        self._reload_requested = threading.Event()
+        self._counters_requested = threading.Event()
+        self._reload_thread: threading.Thread | None = None
+        self._reload_ready: Reload | None = None
+        self._stall_logged = False
+        self._encode_error_logged = False
+        self._reload_started_s = 0.0
+        self.history: deque[tuple[float, ...]] = deque(maxlen=HISTORY_POINTS)
+
+    @property
+    def ring(self) -> Ring:
+        return self.reader.ring
+
+    def stop(self) -> None:
+        """Ask `run()` to finish (safe from a signal handler)."""
+        self._stop.set()
+
+    def request_reload(self) -> None:
+        """Ask for the config and model to be read again (safe from a signal handler)."""
+        self._reload_requested.set()
+
+    def request_counters(self) -> None:
+        """Ask for the counters to be logged (safe from a signal handler)."""
+        self._counters_requested.set()
+
+    def run(self) -> None:
+        started_s = self.started_s = time.monotonic()
+        next_status_s = started_s + self.status_interval_s
+        next_notify_s = next_stats_s = next_pet_s = started_s
+        pet_every_s = self.notifier.watchdog_interval_s
+        switch_interval_s = sys.getswitchinterval()
+        sys.setswitchinterval(SWITCH_INTERVAL_S)
+        # What is loaded by now (modules, model, buffers) lives as long as the daemon: out of the collector's
+        # sight, a full collection does not walk it (tens of ms, a latency spike) while frames flow.
+        gc.freeze()
+        self.writer.start(self.formatter.header())
+        self.reader.start()
+        self.notifier.send("READY=1", f"STATUS={self.short_status()}")
+        next_duties_s = started_s
+        try:
+            while not self._stop.is_set():
+                # frames are waited for and compensated at once; the duties below run every DUTIES_S at most
+                if self.ring.wait(IDLE_WAIT_S):
+                    self._drain()
+                now_s = time.monotonic()
+                if now_s < next_duties_s:
+                    continue
+                next_duties_s = now_s + DUTIES_S
+                if self.duration_s is not None and now_s - started_s >= self.duration_s:
+                    break
+                if now_s >= next_status_s:
+                    status_log.info(self.status_line())
+                    self.latency.max_s = 0.0
+                    next_status_s = now_s + self.status_interval_s
+                if self._counters_requested.is_set():
+                    self._counters_requested.clear()
+                    status_log.info("%s | counters %s", self.status_line(), json.dumps(self.counters_dict()))
+                self._handle_reload()
+                self._watch_threads()
+                if pet_every_s is not None and now_s >= next_pet_s and self.healthy(now_s):
+                    self.notifier.send("WATCHDOG=1")
+                    next_pet_s = now_s + pet_every_s
+                if now_s >= next_notify_s:
+                    self.notifier.send(f"STATUS={self.short_status()}")
+                    next_notify_s = now_s + NOTIFY_STATUS_S
+                if self.stats_path is not None and now_s >= next_stats_s:
+                    latest = self.latest
+                    self.history.append((now_s - self.started_s, latest.temp_c, latest.temp_rate_cps, latest.comp_dph,
+                                         float(latest.flags)))  # fmt: skip
+                    write_stats(self.stats_path, self.snapshot())
+                    next_stats_s = now_s + STATS_EVERY_S
+        finally:
+            self.notifier.send("STOPPING=1")
+            self.reader.stop()
+            self._drain()
+            if not self.writer.close(FLUSH_TIMEOUT_S):
+                log.warning("output did not take the last frames within %.1f s", FLUSH_TIMEOUT_S)
+            status_log.info("final: %s", self.status_line())
+            if self.stats_path is not None:
+                write_stats(self.stats_path, {**self.snapshot(), "running": False})
+            sys.setswitchinterval(switch_interval_s)
+            gc.unfreeze()
+
+    def healthy(self, now_s: float) -> bool:
+        """Whether the data path works: the reader thread alive and coming round its loop (reading, or
+        waiting for a lost port to return), and the writer alive. Decides the systemd watchdog ping."""
+        stalled_s = now_s - self.reader.heartbeat_s
+        if stalled_s > READER_STALL_S and self.reader.alive:
+            if not self._stall_logged:
+                log.error("reader thread stuck for %.1f s; no watchdog ping (systemd will restart fogd)", stalled_s)
+                self._stall_logged = True
+            return False
+        self._stall_logged = False
+        return self.reader.alive and self.writer.alive
+
+    def _handle_reload(self) -> None:
+        """Start preparing a requested reload on a helper thread; swap in a prepared one (between batches)."""
+        if self._reload_requested.is_set() and self._reload_thread is None:
+            self._reload_requested.clear()
+            if self._reload is None:
+                log.warning("SIGHUP: nothing to reload")
+                return
+            self.notifier.send("RELOADING=1", f"MONOTONIC_USEC={time.clock_gettime_ns(time.CLOCK_MONOTONIC) // 1000}")
+            self._reload_ready = None
+            self._reload_started_s = time.monotonic()
+            self._reload_thread = threading.Thread(target=self._prepare_reload, name="fogd-reload", daemon=True)
+            self._reload_thread.start()
+        thread = self._reload_thread
+        if thread is not None and thread.is_alive() and time.monotonic() - self._reload_started_s > RELOAD_TIMEOUT_S:
+            # a read blocked in the kernel cannot be interrupted: abandon the thread (its result is never used)
+            self.counters.reloads_stuck += 1
+            log.error("reload stuck for %.0f s (a FIFO or a hung filesystem?); abandoned, keeping model %s",
+                      RELOAD_TIMEOUT_S, printable(self.model.name))  # fmt: skip
+            self._reload_thread = None
+            self.notifier.send("READY=1", f"STATUS={self.short_status()}")
+        elif thread is not None and not thread.is_alive():
+            self._reload_thread = None
+            prepared, self._reload_ready = self._reload_ready, None
+            if prepared is not None:
+                self._drain()  # the batches already received are compensated with the model they arrived under
+                try:
+                    self.apply(prepared)
+                except Exception as error:  # a reload must never take the running daemon down
+                    self.counters.reloads_refused += 1
+                    log.error("reload failed (%s); keeping model %s", printable(repr(error))[:200], printable(self.model.name))
+            self.notifier.send("READY=1", f"STATUS={self.short_status()}")
+
+    def _prepare_reload(self) -> None:
+        me = threading.current_thread()
+        try:
+            prepared = self._reload()
+            check_rate(prepared.model, self.rate_hz, prepared.model.name)
+            compensator = Compensator(prepared.model, self.rate_hz)  # allocated here, off the data path
+        except FogdError as error:
+            self.counters.reloads_refused += 1
+            log.error("reload refused: %s; keeping model %s", printable(str(error)), printable(self.model.name))
+            return
+        except Exception as error:  # a bug must not take the running daemon down with it
+            self.counters.reloads_refused += 1
+            log.error("reload failed (%s); keeping model %s", printable(repr(error))[:200], printable(self.model.name))
+            return
+        if self._reload_thread is me:  # not abandoned as stuck meanwhile
+            self._reload_ready = replace(prepared, compensator=compensator)
+
+    def apply(self, reload: Reload) -> None:
+        """Use a validated reload from the next batch on."""
+        self.temp_stale_s = reload.temp_stale_s
+        self.status_interval_s = reload.status_interval_s
+        old, model = self.compensator, reload.model
+        new = reload.compensator or Compensator(model, self.rate_hz)
+        kept = model.inputs == old.model.inputs
+        if kept:
+            # compensator.py has no public hand-over of its state: carry the estimator bank and held temperature
+            new.bank = old.bank
+            new._held_temp_c = old._held_temp_c
+        self.compensator, self.model = new, model
+        self.counters.reloads += 1
+        log.warning(
+            "reloaded: model %s (%s); estimator state %s", printable(model.name), model.method,
+            "kept (same inputs)" if kept else "reset (inputs differ): warm-up again",
+        )  # fmt: skip
+
+    def _drain(self) -> None:
+        while True:
+            frames, t_rx_s = self.ring.pop(MAX_BATCH)
+            if not frames:
+                return
+            self.counters.records_popped += len(frames)
+            try:
+                batch = self.compensate(frames, t_rx_s)
+            except Exception as error:  # a bug must cost the batch (counted), never the daemon
+                self._count_unencodable(len(frames), error)
+                continue
+            try:
+                chunk = self.formatter.encode(batch)
+            except Exception as error:  # a value the output format cannot carry: drop that frame alone
+                chunk = self._encode_each(batch, error)
+            self.writer.submit(chunk)
+
+    def _encode_each(self, batch: OutputBatch, error: Exception) -> Chunk:
+        """The batch encoded frame by frame, leaving out (and counting) the frames that cannot be encoded."""
+        data, ends = [], []
+        total = 0
+        for one in split_batch(batch):
+            try:
+                chunk = self.formatter.encode(one)
+            except Exception as one_error:
+                self._count_unencodable(len(one.frames), one_error)
+                continue
+            data.append(chunk.data)
+            ends.extend(total + end for end in chunk.frame_ends)
+            total += len(chunk.data)
+        return Chunk(b"".join(data), ends)
+
+    def _count_unencodable(self, frames: int, error: Exception) -> None:
+        self.counters.frames_unencodable += frames
+        if not self._encode_error_logged:
+            log.error("dropped %d frame(s) that cannot be compensated or encoded (%s: %s); counted as "
+                      "frames_unencodable", frames, type(error).__name__, printable(str(error))[:200])  # fmt: skip
+            self._encode_error_logged = True
+
+    def compensate(self, frames: list[Frame], t_rx_s: list[float]) -> OutputBatch:
+        """One compensator call for every rate sample in `frames` (received at `t_rx_s`)."""
+        samples = self.temperature.rate_samples(frames, t_rx_s, self.axis)
+        rows, rates, usable, temp_c = samples.rows, samples.rate_dph, samples.usable, samples.temp_c
+        stale_s = self.temp_stale_s
+        stale = [age_s > stale_s for age_s in samples.temp_age_s]
+        if len(rows) <= SCALAR_CHUNK:  # a frame or two at real rates: no numpy on the way in
+            comp = self.compensator.process_few(rates, temp_c, usable, stale)
+        else:
+            comp = self.compensator.process(np.array(rates, dtype=np.float64), np.array(temp_c, dtype=np.float64),
+                                            rate_valid=np.array(usable, dtype=bool), temp_stale=np.array(stale, dtype=bool))  # fmt: skip
+        self.counters.samples_compensated += len(rows)
+        self._count_domain(comp.flags)
+        if frames:
+            latency_s = time.monotonic() - t_rx_s[0]  # the oldest frame waited longest
+            self.latency.last_s = latency_s
+            if latency_s > self.latency.max_s:
+                self.latency.max_s = latency_s
+        if rows:
+            self.latest = Latest(
+                rates[-1], float(comp.comp_dph[-1]), float(comp.rate_comp_dph[-1]), float(comp.temp_c[-1]),
+                float(comp.temp_rate_cps[-1]), int(comp.flags[-1]),
+            )  # fmt: skip
+        times = self.clock.times(samples.device_s)
+        return OutputBatch(frames, rows, times if len(rows) <= SCALAR_CHUNK else np.array(times, dtype=np.float64), comp)
+
+    def _count_domain(self, flags: np.ndarray | list[int]) -> None:
+        """Running counts of the samples flagged OUT_OF_DOMAIN and CLAMPED."""
+        if isinstance(flags, list):  # a frame or two: Python ints cost less than two numpy calls
+            for value in flags:
+                if value & _OUT_OF_DOMAIN:
+                    self.counters.samples_out_of_domain += 1
+                if value & _CLAMPED:
+                    self.counters.samples_clamped += 1
+        else:
+            self.counters.samples_out_of_domain += int(np.count_nonzero(flags & _OUT_OF_DOMAIN))
+            self.counters.samples_clamped += int(np.count_nonzero(flags & _CLAMPED))
+
+    def domain_shares(self) -> dict[str, float]:
+        """Fractions of the samples compensated since start that took the fallback, or were clamped (NaN
+        before the first sample)."""
+        total = self.counters.samples_compensated
+        if not total:
+            return {"out_of_domain": float("nan"), "clamped": float("nan")}
+        counters = self.counters
+        return {"out_of_domain": counters.samples_out_of_domain / total, "clamped": counters.samples_clamped / total}
+
+    def _watch_threads(self) -> None:
+        """A dead thread is a bug; log it, count it and start it again rather than hang silently."""
+        if not self.reader.alive and not self._stop.is_set():
+            self.counters.reader_deaths += 1
+            log.error("reader thread died (%r); restarting it", self.reader.error)
+            time.sleep(RESTART_DELAY_S)
+            self.reader.start()
+        if not self.writer.alive and not self._stop.is_set():
+            self.counters.writer_deaths += 1
+            log.error("writer thread died (%r); output stops", self.writer.error)
+            self.stop()
+
+    def status_line(self) -> str:
+        reader, lexer, writer = self.reader.counters, self.reader.lexer.counters, self.writer.counters
+        latest = self.latest
+        frames_in = " ".join(f"{kind} {count}" for kind, count in reader.frames_in.items() if count)
+        drops = " ".join(
+            f"{name} {value}" for name, value in lexer.as_dict().items() if value and name not in NOT_DROPS
+        )
+        dropped_out = (
+            writer.frames_dropped_full + writer.frames_dropped_timeout + writer.frames_dropped_error
+            + writer.frames_dropped_exit + writer.frames_cut
+        )
+        return (
+            f"in {frames_in or 0} | out {writer.frames_written} dropped {dropped_out} | drops {drops or 'none'} | "
+            f"ring overruns {self.ring.overruns} | reconnects {reader.reconnects}"
+            f"{f' (about {reader.disconnected_s * self.rate_hz:.0f} frames lost unplugged)' if reader.disconnects else ''} | "
+            f"latency {1e3 * self.latency.last_s:.1f} ms (max {1e3 * self.latency.max_s:.1f}) | "
+            f"T {latest.temp_c:.2f} C dT/dt {latest.temp_rate_cps:+.5f} C/s comp {latest.comp_dph:+.4f} deg/h "
+            f"({describe(latest.flags)}) | {_shares_text(self.domain_shares())} | model {printable(self.model.name)} | "
+            f"fogd {__version__}"
+        )
+
+    def short_status(self) -> str:
+        """One short line for systemd's STATUS= (shown by systemctl status)."""
+        latest = self.latest
+        link = "" if getattr(self.reader, "connected", True) else "port lost, waiting | "
+        return (
+            f"{link}{self.counters.samples_compensated} samples | T {latest.temp_c:.2f} C | "
+            f"comp {latest.comp_dph:+.4f} deg/h | model {printable(self.model.name)}"
+        )
+
+    def snapshot(self) -> dict:
+        """Everything an operator reads from the stats file, `fogd --status` or the metrics endpoint."""
+        now_s = time.monotonic()
+        return {
+            **self.info,
+            "version": __version__,
+            "pid": os.getpid(),
+            "running": not self._stop.is_set(),
+            "time_unix_s": time.time(),
+            "uptime_s": now_s - self.started_s,
+            "connected": bool(getattr(self.reader, "connected", True)),
+            "model": {"name": self.model.name, "method": self.model.method},
+            "latest": asdict(self.latest),
+            "latency_s": {"last": self.latency.last_s, "max_since_status": self.latency.max_s},
+            "counters": self.counters_dict(),
+            "domain_shares": self.domain_shares(),
+            "history": {name: [point[i] for point in list(self.history)] for i, name in enumerate(HISTORY_FIELDS)},
+            "status": self.status_line(),
+        }
+
+    def counters_dict(self) -> dict:
+        """Every counter, for tests and the final log line."""
+        return {
+            "reader": asdict(self.reader.counters),
+            "lexer": self.reader.lexer.counters.as_dict(),
+            "ring_overruns": self.ring.overruns,
+            "writer": asdict(self.writer.counters),
+            "loop": asdict(self.counters),
+            "balance": self.balance(),
+        }
+
+    def balance(self) -> dict:
+        """Where every decoded frame went: in = out + used_as_input + sum(dropped) + sum(pending). Frames used
+        as input are the temperature (and other) frames an output format without them consumes; at a clean
+        stop nothing is pending."""
+        lexer, writer, loop = self.reader.lexer.counters, self.writer.counters, self.counters
+        settled = (
+            writer.frames_written + writer.frames_dropped_full + writer.frames_dropped_timeout
+            + writer.frames_dropped_error + writer.frames_dropped_exit + writer.frames_cut
+        )  # fmt: skip
+        dropped = {
+            "ring_overrun": self.ring.overruns,
+            "unencodable": loop.frames_unencodable,
+            "output_queue_full": writer.frames_dropped_full,
+            "output_timeout": writer.frames_dropped_timeout,
+            "output_error": writer.frames_dropped_error,
+            "output_at_exit": writer.frames_dropped_exit,
+            "output_cut": writer.frames_cut,
+        }
+        pending = {
+            "ring": len(self.ring),
+            "writer": writer.frames_submitted - settled,
+            "reader": lexer.frames_ok + lexer.other_frames - sum(self.reader.counters.frames_in.values()),
+        }
+        frames_in = lexer.frames_ok + lexer.other_frames
+        used = loop.records_popped - loop.frames_unencodable - writer.frames_submitted
+        return {
+            "in": frames_in, "out": writer.frames_written, "used_as_input": used, "dropped": dropped,
+            "pending": pending, "adds_up": frames_in == writer.frames_written + used + sum(dropped.values()) + sum(pending.values()),
+        }  # fmt: skip
+
+
+def _shares_text(shares: dict[str, float]) -> str:
+    """'fallback 0.4 % clamped 1.2 %' (no share before the first sample)."""
+    fallback, clamped = shares["out_of_domain"], shares["clamped"]
+    if fallback != fallback:
+        return "fallback - clamped -"
+    return f"fallback {100.0 * fallback:.1f} % clamped {100.0 * clamped:.1f} %"

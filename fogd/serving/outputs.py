@@ -1,0 +1,499 @@
+"""Where compensated samples go and how they look: the output formats (`same`, `fogd`, `csv`, `jsonl`), the
+sinks (stdout, a file, a serial or pty device, a pty fogd creates and links like socat), and the writer thread
+that drains a bounded queue into the sink with a write timeout.
+
+The compensation loop hands the writer one encoded chunk per batch and never waits: when the queue is full
+the chunk's frames are dropped and counted, and a consumer that does not take bytes within the write timeout
+costs the frames not yet written, counted too. Memory is bounded by the queue length, whatever the consumer
+does. When the writer thread is idle (nothing queued or being written) and the sink is non-blocking, the
+loop writes the chunk itself with one non-blocking write, and queues only what the consumer did not take at
+once: output order is kept, nothing waits, and a frame reaches the consumer without a wake-up of the writer
+thread (most of the daemon's latency at real rates).
+"""
+
+from __future__ import annotations
+
+import bisect
+import logging
+import math
+import os
+import queue
+import select
+import stat
+import threading
+import time
+import tty
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import serial
+
+from fogd.core.columns import OUTPUT_FORMATS
+from fogd.core.compensator import Compensated
+from fogd.errors import DeviceError, describe_os_error
+from fogd.protocols import Protocol
+from fogd.protocols.base import Frame
+from fogd.protocols.fogdbin import SEQ_MODULUS, FogdProtocol
+from fogd.serving.ring import RATE_KINDS
+from fogd.serving.serialio import describe_open_error
+
+log = logging.getLogger("fogd.writer")
+
+OUT_FORMATS = ("same", "fogd", "csv", "jsonl")
+CSV_COLUMNS = tuple(OUTPUT_FORMATS)  # t_s,rate_dph,temp_c,temp_rate_cps,comp_dph,rate_comp_dph,flags
+CSV_ROW = ",".join(OUTPUT_FORMATS[name] for name in CSV_COLUMNS) + "\n"
+WRITE_TIMEOUT_S = 1.0
+QUEUE_CHUNKS = 64  # batches waiting for the sink; a batch is at most a ring's pop, so memory stays bounded
+PTY_PREFIX = "pty:"
+
+
+@dataclass
+class OutputBatch:
+    """One batch from the ring, compensated: `comp` and `t_s` have one row per entry of `rate_rows`."""
+
+    frames: list[Frame]  # as the lexer decoded them, in arrival order
+    rate_rows: list[int]  # indices of the frames that carry a rate
+    t_s: np.ndarray | list[float]  # output time of each rate row
+    comp: Compensated  # the compensated axis, per rate row
+
+
+@dataclass
+class Chunk:
+    """Encoded output: the bytes and the end offset of each frame in them."""
+
+    data: bytes
+    frame_ends: list[int]
+    begun: bool = False  # the first frame's start is already on the wire: it must be finished, never dropped
+
+
+class Formatter:
+    """Encodes compensated batches in one output format; `axis` is the compensated gyro axis (0..2)."""
+
+    def __init__(self, out_format: str, protocol: Protocol, axis: int) -> None:
+        if out_format not in OUT_FORMATS:
+            raise ValueError(f"unknown output format {out_format!r}")
+        self.out_format = out_format
+        self.protocol = protocol
+        self.axis = axis
+        self._fogd_protocol = FogdProtocol()
+        self._seq = 0
+        self._pieces = getattr(self, f"_{out_format}")
+
+    def header(self) -> bytes:
+        """What goes to the sink before any frame (the CSV header line)."""
+        return (",".join(CSV_COLUMNS) + "\n").encode() if self.out_format == "csv" else b""
+
+    def encode(self, batch: OutputBatch) -> Chunk:
+        pieces = self._pieces(batch)
+        if len(pieces) == 1:
+            return Chunk(pieces[0], [len(pieces[0])])
+        ends, total = [], 0
+        for piece in pieces:
+            total += len(piece)
+            ends.append(total)
+        return Chunk(b"".join(pieces), ends)
+
+    def _same(self, batch: OutputBatch) -> list[bytes]:
+        """Every input frame, rate frames re-encoded with the compensated rate and a fresh CRC."""
+        compensated = dict(zip(batch.rate_rows, _values(batch.comp.rate_comp_dph)))
+        axis, reencode = self.axis, self.protocol.reencode
+        pieces = []
+        for index, frame in enumerate(batch.frames):
+            rate_comp = compensated.get(index)
+            if rate_comp is None:
+                pieces.append(frame.raw)
+                continue
+            rates = list(frame.rate_dph)
+            rates[axis] = rate_comp
+            pieces.append(reencode(frame, rates))
+        return pieces
+
+    def _fogd(self, batch: OutputBatch) -> list[bytes]:
+        """One fogd compensated-output frame per rate sample."""
+        comp = batch.comp
+        axis = self.axis
+        pieces = []
+        columns = zip(
+            _values(batch.t_s), [batch.frames[row] for row in batch.rate_rows], _values(comp.temp_c),
+            _values(comp.temp_rate_cps), _values(comp.comp_dph), _values(comp.rate_comp_dph), _values(comp.flags),
+        )  # fmt: skip
+        for t_s, rated, temp_c, temp_rate_cps, comp_dph, rate_comp_dph, flags in columns:
+            comps = [0.0, 0.0, 0.0]
+            comps[axis] = comp_dph
+            rates_comp = list(rated.rate_dph)
+            rates_comp[axis] = rate_comp_dph
+            frame = Frame(
+                "fogd", "comp", "comp", self._seq, max(t_s, 0.0), tuple(rated.rate_dph), rated.axis_valid,
+                rated.axis_present, temp_c, b"", temp_rate_cps, tuple(comps), tuple(rates_comp), flags,
+            )  # fmt: skip
+            pieces.append(self._fogd_protocol.encode(frame))
+            self._seq = (self._seq + 1) % SEQ_MODULUS
+        return pieces
+
+    def _rows(self, batch: OutputBatch):
+        comp = batch.comp
+        axis, frames = self.axis, batch.frames
+        return zip(
+            _values(batch.t_s), [frames[row].rate_dph[axis] for row in batch.rate_rows], _values(comp.temp_c),
+            _values(comp.temp_rate_cps), _values(comp.comp_dph), _values(comp.rate_comp_dph), _values(comp.flags),
+        )  # fmt: skip
+
+    def _csv(self, batch: OutputBatch) -> list[bytes]:
+        """fogd-replay's columns and number formats, one row per rate sample."""
+        return [(CSV_ROW % row).encode() for row in self._rows(batch)]
+
+    def _jsonl(self, batch: OutputBatch) -> list[bytes]:
+        """One JSON object per rate sample (null for NaN/Inf)."""
+        return [
+            (
+                f'{{"t_s":{_json(t_s)},"rate_dph":{_json(rate)},"temp_c":{_json(temp)},'
+                f'"temp_rate_cps":{_json(temp_rate)},"comp_dph":{_json(comp)},"rate_comp_dph":{_json(rate_comp)},'
+                f'"flags":{flags}}}\n'
+            ).encode()
+            for t_s, rate, temp, temp_rate, comp, rate_comp, flags in self._rows(batch)
+        ]
+
+
+def _values(column: np.ndarray | list) -> list:
+    """A column as Python numbers (the daemon's few-frame batches are lists already)."""
+    return column if isinstance(column, list) else column.tolist()
+
+
+def _json(value: float) -> str:
+    return repr(value) if math.isfinite(value) else "null"
+
+
+def split_batch(batch: OutputBatch) -> list[OutputBatch]:
+    """The batch as one batch per frame (the slow path that isolates a frame no format can encode)."""
+    position = {row: j for j, row in enumerate(batch.rate_rows)}
+    comp = batch.comp
+    batches = []
+    for i, frame in enumerate(batch.frames):
+        j = position.get(i)
+        rows = slice(j, j + 1) if j is not None else slice(0, 0)
+        batches.append(OutputBatch(
+            [frame], [0] if j is not None else [], batch.t_s[rows],
+            Compensated(comp.temp_c[rows], comp.temp_rate_cps[rows], comp.comp_dph[rows], comp.rate_comp_dph[rows],
+                        comp.flags[rows]),
+        ))  # fmt: skip
+    return batches
+
+
+def rate_rows(frames: list[Frame]) -> list[int]:
+    """Indices of the frames that carry a gyro rate."""
+    return [index for index, frame in enumerate(frames) if frame.kind in RATE_KINDS]
+
+
+class SinkError(Exception):
+    """A write that failed after `written` bytes of the data had gone (a full disk, a vanished consumer)."""
+
+    def __init__(self, written: int, error: OSError) -> None:
+        super().__init__(describe_os_error(error))
+        self.written = written
+        self.error = error
+
+
+class Sink:
+    """A byte destination with a file descriptor; `write` gives up after a timeout and says how far it got."""
+
+    def __init__(self, name: str, fd: int, *, blocking: bool, on_close=None) -> None:
+        self.name = name
+        self.fd = fd
+        self.blocking = blocking  # regular files: the disk, not a consumer, sets the pace
+        self._on_close = on_close
+        try:
+            self.regular = stat.S_ISREG(os.fstat(fd).st_mode)  # a cut frame can be cut off again (truncate)
+        except OSError:
+            self.regular = False
+
+    def write(self, data: bytes, timeout_s: float) -> int:
+        """Bytes of `data` written before `timeout_s` ran out (all of them unless the consumer is stuck);
+        SinkError (with the bytes written before it) when the sink fails."""
+        view = memoryview(data)
+        done = 0
+        deadline = time.monotonic() + timeout_s
+        while done < len(data):
+            if not self.blocking:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    break
+                _, ready, _ = select.select([], [self.fd], [], remaining)
+                if not ready:
+                    break
+            try:
+                done += os.write(self.fd, view[done:])
+            except BlockingIOError:
+                continue
+            except OSError as error:
+                raise SinkError(done, error) from None
+        return done
+
+    def cut_back(self, length: int) -> bool:
+        """Remove the last `length` bytes written (a frame the disk took only part of); regular files only."""
+        if not self.regular:
+            return False
+        try:
+            end = os.lseek(self.fd, 0, os.SEEK_CUR)
+            os.ftruncate(self.fd, end - length)
+            os.lseek(self.fd, end - length, os.SEEK_SET)
+        except OSError:
+            return False
+        return True
+
+    def close(self) -> None:
+        if self._on_close is not None:
+            self._on_close()
+
+
+def open_sink(spec: str, baud: int) -> Sink:
+    """The sink `--out` names: '-' (stdout), 'pty:PATH' (a new pty linked at PATH), or a file or device path.
+    Raises DeviceError with one line when it cannot be opened."""
+    if spec == "-":
+        return _stdout_sink()
+    if spec.startswith(PTY_PREFIX):
+        return _pty_sink(spec[len(PTY_PREFIX) :])
+    try:
+        mode = os.stat(spec).st_mode
+    except FileNotFoundError:
+        mode = 0
+    except OSError as error:
+        raise DeviceError(f"cannot open output {describe_os_error(error)}") from None
+    if stat.S_ISCHR(mode):
+        return _device_sink(spec, baud)
+    try:
+        if stat.S_ISFIFO(mode):
+            return Sink(spec, os.open(spec, os.O_WRONLY | os.O_NONBLOCK), blocking=False)
+        fd = os.open(spec, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    except OSError as error:
+        raise DeviceError(f"cannot open output {describe_os_error(error)}") from None
+    return Sink(spec, fd, blocking=True, on_close=lambda: os.close(fd))
+
+
+def _stdout_sink() -> Sink:
+    if stat.S_ISREG(os.fstat(1).st_mode):
+        return Sink("stdout", 1, blocking=True)
+    # A pipe or terminal: a fresh open file description, so non-blocking mode does not leak to the shell.
+    try:
+        fd = os.open("/proc/self/fd/1", os.O_WRONLY | os.O_NONBLOCK | os.O_NOCTTY)
+    except OSError:
+        return Sink("stdout", 1, blocking=True)
+    return Sink("stdout", fd, blocking=False, on_close=lambda: os.close(fd))
+
+
+def _device_sink(path: str, baud: int) -> Sink:
+    """A serial port or someone else's pty (opened like the input port), or another character device such
+    as /dev/null; written without blocking."""
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_NOCTTY | os.O_NONBLOCK)
+    except OSError as error:
+        raise DeviceError(f"cannot open output {describe_os_error(error)}") from None
+    if not os.isatty(fd):
+        return Sink(path, fd, blocking=False, on_close=lambda: os.close(fd))
+    os.close(fd)
+    try:
+        port = serial.Serial(path, baud, write_timeout=0, exclusive=True)
+    except serial.SerialException as error:
+        raise DeviceError(f"cannot open output {describe_open_error(path, error)}") from None
+    except (OSError, ValueError) as error:
+        raise DeviceError(f"cannot open output {path}: {error}") from None
+    return Sink(path, port.fd, blocking=False, on_close=port.close)
+
+
+def _pty_sink(link: str) -> Sink:
+    """A new pty in raw mode with `link` pointing at its slave; fogd writes to the master."""
+    link_path = Path(link)
+    if link_path.exists() and not link_path.is_symlink():
+        raise DeviceError(f"cannot make pty link {link}: it exists and is not a symlink; remove it or choose another path")
+    master, slave = os.openpty()
+    try:
+        tty.setraw(slave)
+        os.set_blocking(master, False)
+        slave_name = os.ttyname(slave)
+        link_path.parent.mkdir(parents=True, exist_ok=True)
+        temporary = link_path.with_name(f".{link_path.name}.{os.getpid()}")
+        os.symlink(slave_name, temporary)
+        os.replace(temporary, link_path)
+    except OSError as error:
+        os.close(master)
+        os.close(slave)
+        raise DeviceError(f"cannot make pty link {link}: {describe_os_error(error)}") from None
+    log.info("output pty %s -> %s", link, slave_name)
+
+    def close() -> None:
+        try:
+            if os.readlink(link_path) == slave_name:
+                link_path.unlink()
+        except OSError:
+            pass
+        os.close(master)
+        os.close(slave)
+
+    # fogd keeps the slave open too, so a consumer that comes and goes never makes the master's writes fail.
+    return Sink(f"pty {link}", master, blocking=False, on_close=close)
+
+
+@dataclass
+class WriterCounters:
+    """Every frame handed to `submit` ends in exactly one of these, or is `frames_pending` (the writer is still
+    finishing a frame the consumer took part of): submitted = written + dropped_* + cut + pending."""
+
+    frames_submitted: int = 0
+    frames_written: int = 0
+    frames_dropped_full: int = 0  # queue full: the consumer is behind
+    frames_dropped_timeout: int = 0  # the consumer did not take bytes within the write timeout
+    frames_dropped_error: int = 0  # the sink reported an error
+    frames_dropped_exit: int = 0  # still queued when the flush at exit ran out of time
+    frames_cut: int = 0  # begun on the wire but never finished: the consumer stalled through the exit flush
+    frames_pending: int = 0  # begun on the wire; its rest goes before anything else
+
+
+class Writer:
+    """The writer thread: a bounded queue of encoded chunks drained into a sink with a write timeout.
+
+    A frame goes on the wire whole or not at all: when the consumer takes part of a frame and then stalls,
+    the rest of that frame is kept (`frames_pending`) and written before any later byte, and the frames behind
+    it are dropped (counted); on a regular file a frame the disk took only part of is cut off again."""
+
+    def __init__(self, sink: Sink, *, queue_chunks: int = QUEUE_CHUNKS, write_timeout_s: float = WRITE_TIMEOUT_S) -> None:
+        self.sink = sink
+        self.write_timeout_s = write_timeout_s
+        self.counters = WriterCounters()
+        self._queue: queue.Queue[Chunk | None] = queue.Queue(maxsize=queue_chunks)
+        self._thread = threading.Thread(target=self._run, name="fogd-writer", daemon=True)
+        self._error_logged = False
+        self.error: BaseException | None = None  # what killed the thread, if anything did
+        # chunks queued (counted by `submit`'s thread) and written (by the writer thread): each counter has one
+        # writer, so no lock; equal means the writer thread is idle in `get` with nothing queued.
+        self._queued = 0
+        self._done = 0
+        self._tail = b""  # the unwritten rest of a frame begun on the wire (writer thread's, set before _done)
+        self._give_up_s = math.inf  # monotonic time after which queued chunks are counted, not written (exit)
+
+    def start(self, header: bytes = b"") -> None:
+        if header:
+            try:
+                self.sink.write(header, self.write_timeout_s)
+            except SinkError:
+                pass  # the frames' own writes report the error
+        self._thread.start()
+
+    @property
+    def alive(self) -> bool:
+        return self._thread.is_alive()
+
+    def submit(self, chunk: Chunk) -> None:
+        """Queue a chunk without waiting; a full queue drops it (counted)."""
+        if not chunk.frame_ends:
+            return
+        self.counters.frames_submitted += len(chunk.frame_ends)
+        if not self.sink.blocking and self._queued == self._done and not self._tail and self._thread.is_alive():
+            rest = self._write_now(chunk)
+            if rest is None:
+                return
+            chunk = rest
+        try:
+            self._queue.put_nowait(chunk)
+            self._queued += 1
+        except queue.Full:  # (never the rest of a direct write: the writer was idle, the queue empty)
+            self.counters.frames_dropped_full += len(chunk.frame_ends)
+
+    def _write_now(self, chunk: Chunk) -> Chunk | None:
+        """One non-blocking write on the caller's thread while the writer thread is idle (so the counters have
+        one writer at a time); what the consumer did not take, for the queue, or None."""
+        try:
+            written = os.write(self.sink.fd, chunk.data)
+        except OSError:  # would block, or an error the writer thread logs and counts by its own policy
+            return chunk
+        complete = bisect.bisect_right(chunk.frame_ends, written)
+        self.counters.frames_written += complete
+        if written == len(chunk.data):
+            return None
+        begun = written > (chunk.frame_ends[complete - 1] if complete else 0)
+        return Chunk(chunk.data[written:], [end - written for end in chunk.frame_ends[complete:]], begun)
+
+    def close(self, timeout_s: float) -> bool:
+        """Write what is queued (within `timeout_s`), stop the thread and close the sink; False if it timed out.
+        What the flush could not write is counted (dropped at exit, or cut)."""
+        deadline = time.monotonic() + timeout_s
+        flushed = True
+        if self._thread.is_alive():
+            self._give_up_s = deadline
+            try:
+                self._queue.put(None, timeout=max(0.0, deadline - time.monotonic()))
+            except queue.Full:
+                flushed = False
+                # past the deadline the thread counts chunks instead of writing them: room comes within a write
+                try:
+                    self._queue.put(None, timeout=self.write_timeout_s + 1.0)
+                except queue.Full:
+                    pass
+            self._thread.join(max(0.0, deadline - time.monotonic()) + (0.0 if flushed else self.write_timeout_s + 1.0))
+            flushed = flushed and not self._thread.is_alive()
+        if not self._thread.is_alive():
+            self.sink.close()
+        return flushed
+
+    def _run(self) -> None:
+        try:
+            while True:
+                chunk = self._queue.get()
+                if chunk is None:
+                    self._finish_tail()
+                    return
+                if time.monotonic() > self._give_up_s:
+                    self.counters.frames_dropped_exit += len(chunk.frame_ends)
+                else:
+                    self._write(chunk)
+                self._done += 1
+        except BaseException as error:  # the daemon notices a dead writer through `alive` and `error`
+            self.error = error
+            raise
+
+    def _finish_tail(self) -> None:
+        """At exit: finish a frame begun on the wire, or count it cut."""
+        if not self._tail:
+            return
+        try:
+            written = self.sink.write(self._tail, max(0.0, min(self.write_timeout_s, self._give_up_s - time.monotonic())))
+        except SinkError as error:
+            written = error.written
+        counters = self.counters
+        counters.frames_pending = 0
+        if written == len(self._tail):
+            counters.frames_written += 1
+        else:
+            counters.frames_cut += 1
+        self._tail = b""
+
+    def _write(self, chunk: Chunk) -> None:
+        counters = self.counters
+        data, ends, begun = chunk.data, chunk.frame_ends, chunk.begun
+        if self._tail:  # finish the frame begun on the wire before anything else
+            tail = self._tail
+            data, ends, begun = tail + data, [len(tail), *(end + len(tail) for end in ends)], True
+            counters.frames_pending = 0
+            self._tail = b""
+        failure: SinkError | None = None
+        try:
+            written = self.sink.write(data, self.write_timeout_s)
+        except SinkError as error:
+            written, failure = error.written, error
+        complete = bisect.bisect_right(ends, written)
+        frame_start = ends[complete - 1] if complete else 0
+        partial = complete < len(ends) and (written > frame_start or (complete == 0 and begun))
+        if partial and failure is not None and written > frame_start and self.sink.cut_back(written - frame_start):
+            partial = False  # a file: the frame the disk took part of is gone again, whole
+        if partial:
+            self._tail = data[written : ends[complete]]
+            counters.frames_pending = 1
+        lost = len(ends) - complete - (1 if partial else 0)
+        counters.frames_written += complete
+        if failure is None:
+            self._error_logged = False
+            counters.frames_dropped_timeout += lost
+            return
+        if not self._error_logged:
+            log.warning("%s: write failed: %s; dropping output until it recovers", self.sink.name, failure)
+            self._error_logged = True
+        counters.frames_dropped_error += lost
