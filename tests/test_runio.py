@@ -10,6 +10,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from fogd.core.columns import CHANNELS, GYRO_CHANNELS, SINGLE_CHANNEL, TRUE_ERROR_COLUMN, truth_column
 from fogd.core.runio import read_run, write_csv
 from fogd.errors import InputError
 
@@ -328,3 +329,38 @@ def test_any_finite_table_round_trips(tmp_path, table):
     step = np.median(np.diff(table["t_s"]))
     printed = 1e-8 * np.max(np.abs(table["t_s"]))  # worst change of a step by printing both ends
     assert run.rate_hz == pytest.approx(1.0 / step, rel=2 * printed / step + 1e-12)
+
+
+@given(present=st.lists(st.sampled_from(CHANNELS), min_size=1, max_size=6, unique=True), seed=st.integers(0, 2**16))
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+def test_a_multi_channel_run_reads_every_channel_and_views_each_as_a_single_channel_run(tmp_path, present, seed):
+    rng = np.random.default_rng(seed)
+    values = {name: rng.normal(size=20).round(6) for name in present}
+    truth = {truth_column(name): rng.normal(size=20).round(6) for name in present[:1]}
+    columns = {"t_s": np.arange(20) / 10.0, **values, "temp_c": np.linspace(20.0, 21.0, 20), **truth}
+    path = tmp_path / f"imu-{seed}.csv"
+    write_csv(str(path), columns, {})
+    run = read_run(path)
+    assert list(run.channels) == present
+    expected_primary = "rate_z_dph" if "rate_z_dph" in present else next((n for n in GYRO_CHANNELS if n in present), present[0])
+    assert np.array_equal(run.rate_dph, values[expected_primary])
+    for name in present:
+        view = run.channel(name)
+        assert np.array_equal(view.rate_dph, values[name]) and list(view.channels) == [name]
+        assert np.array_equal(view.t_s, run.t_s) and np.array_equal(view.temp_c, run.temp_c)
+        if name == present[0]:
+            assert np.array_equal(view.extra[TRUE_ERROR_COLUMN], truth[truth_column(name)])
+        else:
+            assert TRUE_ERROR_COLUMN not in view.extra
+
+
+def test_a_single_axis_run_is_its_own_one_channel(tmp_path):
+    run = read_run(write_text(tmp_path, "\n".join([HEADER, *rows(5)]) + "\n"))
+    assert list(run.channels) == [SINGLE_CHANNEL] and run.channel(SINGLE_CHANNEL).rate_dph is run.rate_dph
+    with pytest.raises(InputError, match="no channel 'rate_x_dph'; it has rate_dph"):
+        run.channel("rate_x_dph")
+
+
+def test_an_imu_run_without_temperature_names_what_a_run_needs(tmp_path):
+    message = input_error(write_text(tmp_path, "t_s,rate_x_dph,accel_z_g\n0,1,1\n0.1,1,1\n"))
+    assert "missing column(s) temp_c" in message and "accel_z_g" in message

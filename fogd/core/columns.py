@@ -7,8 +7,12 @@ simulator's truth column, and the block length of the paper's tables (100 s mean
 
 from __future__ import annotations
 
-RUN_COLUMNS = ("t_s", "rate_dph", "temp_c")
+RUN_COLUMNS = ("t_s", "rate_dph", "temp_c")  # a single-axis run
 TRUE_ERROR_COLUMN = "true_error_dph"  # written by fogd-sim; used for diagnostics only, never for fitting
+SINGLE_CHANNEL = "rate_dph"  # the one channel of a single-axis run
+GYRO_CHANNELS = ("rate_x_dph", "rate_y_dph", "rate_z_dph")
+ACCEL_CHANNELS = ("accel_x_g", "accel_y_g", "accel_z_g")
+CHANNELS = GYRO_CHANNELS + ACCEL_CHANNELS  # a multi-channel run: t_s, those the unit has, temp_c
 OUTPUT_FORMATS = {  # the compensated-output CSV: column -> printf format
     "t_s": "%.6f",
     "rate_dph": "%.9g",
@@ -24,3 +28,9 @@ BLOCK_S = 100.0  # block length of the targets and of table 4, as in the paper
 def block_samples(block_s: float, rate_hz: float) -> int:
     """Samples in one block of `block_s` seconds at `rate_hz` (at least one)."""
     return max(1, int(round(block_s * rate_hz)))
+
+
+def truth_column(channel: str) -> str:
+    """The simulator's true thermal error of `channel`: true_error_dph for a single-axis run, else
+    true_error_<channel> (true_error_rate_x_dph, true_error_accel_z_g)."""
+    return TRUE_ERROR_COLUMN if channel == SINGLE_CHANNEL else f"true_error_{channel}"

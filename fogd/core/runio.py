@@ -1,5 +1,9 @@
 """Reading and writing run CSVs (`t_s,rate_dph,temp_c[,...]`), with errors that name the file and line.
 
+A multi-channel run (`t_s,rate_x_dph,...,accel_z_g,temp_c`, the channels the unit has) reads into the
+same `Run`: `channels` holds every measured channel and `channel(name)` gives the run as a single-channel
+one, so everything written for one axis (training, replay, tables) serves each channel unchanged.
+
 A run is read with numpy's C reader; only when that fails is the file scanned again in Python to name the
 first bad line. Rows with NaN or Inf values are kept (callers flag or skip them) and counted.
 """
@@ -13,24 +17,28 @@ import io
 import sys
 import threading
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import IO, Iterator
 
 import numpy as np
 
 from fogd.core.atomic import replaced
-from fogd.core.columns import RUN_COLUMNS
+from fogd.core.columns import CHANNELS, GYRO_CHANNELS, RUN_COLUMNS, SINGLE_CHANNEL, TRUE_ERROR_COLUMN, truth_column
 from fogd.errors import InputError, NoInputError, describe_os_error
 
 MAX_GAP_PERIODS = 5.0  # a time step longer than this many sample periods is a gap, not jitter
 MIN_RATE_HZ, MAX_RATE_HZ = 1e-3, 100_000.0  # the daemon's range; beyond, t_s is not in seconds (or not a time)
+_TRUTH_COLUMNS = frozenset(truth_column(name) for name in (SINGLE_CHANNEL, *CHANNELS))
 LONG_LINE_BLOCK = 2048  # a line of twice this many bytes holds a whole aligned block without a newline
 
 
 @dataclass
 class Run:
-    """One recorded run: required columns as float64 arrays, extra numeric columns by name."""
+    """One recorded run: required columns as float64 arrays, extra numeric columns by name.
+
+    `rate_dph` is the run's primary channel: `rate_dph` of a single-axis run, else rate_z_dph when the run has
+    it (fogd's default axis), else its first gyro channel, else its first channel."""
 
     path: str
     t_s: np.ndarray
@@ -39,6 +47,22 @@ class Run:
     rate_hz: float
     sha256: str
     extra: dict[str, np.ndarray] = field(default_factory=dict)
+    channels: dict[str, np.ndarray] = field(default_factory=dict)  # every measured channel, in file order
+
+    def __post_init__(self) -> None:
+        if not self.channels:
+            self.channels = {SINGLE_CHANNEL: self.rate_dph}
+
+    def channel(self, name: str) -> Run:
+        """This run as a single-channel run of `name`: its rate_dph is that channel (deg/h, or g for an
+        accelerometer) and its true-error column that channel's truth, when the simulator wrote one."""
+        if name not in self.channels:
+            raise InputError(f"{self.path}: no channel {name!r}; it has {', '.join(self.channels)}")
+        extra = {key: values for key, values in self.extra.items() if key not in _TRUTH_COLUMNS}
+        truth = self.extra.get(truth_column(name))
+        if truth is not None:
+            extra[TRUE_ERROR_COLUMN] = truth
+        return replace(self, rate_dph=self.channels[name], extra=extra, channels={name: self.channels[name]})
 
     @property
     def name(self) -> str:
@@ -65,7 +89,9 @@ def read_run(path: str | Path, *, max_gap_periods: float = MAX_GAP_PERIODS) -> R
         raise InputError(f"{path}: empty file (expected a header line {','.join(RUN_COLUMNS)} and data rows)")
     _refuse_long_lines(path, data)
     header_line, names = _header(path, data)
-    missing = [name for name in RUN_COLUMNS if name not in names]
+    channel_names = [name for name in names if name in CHANNELS]
+    required = ("t_s", "temp_c") if channel_names and SINGLE_CHANNEL not in names else RUN_COLUMNS
+    missing = [name for name in required if name not in names]
     if missing:
         hints = []
         for name in missing:
@@ -73,7 +99,8 @@ def read_run(path: str | Path, *, max_gap_periods: float = MAX_GAP_PERIODS) -> R
             hints.append(f"{name} (did you mean {close[0]!r}?)" if close else name)
         raise InputError(
             f"{path}:{header_line}: missing column(s) {', '.join(hints)}; the header has "
-            f"{','.join(names) or 'nothing'}; a run needs {','.join(RUN_COLUMNS)}"
+            f"{','.join(names) or 'nothing'}; a run needs {','.join(RUN_COLUMNS)} (or, from an IMU, t_s, temp_c and "
+            f"any of {','.join(CHANNELS)})"
         )
     digest = _Sha256(data)  # hashing releases the GIL: it runs while numpy parses
     text = _Text(data)  # decoded only to report an error
@@ -91,15 +118,25 @@ def read_run(path: str | Path, *, max_gap_periods: float = MAX_GAP_PERIODS) -> R
     columns = {name: np.ascontiguousarray(table[:, index]) for index, name in enumerate(names)}
     t_s = columns.pop("t_s")
     rate_hz = _check_time(path, t_s, text, header_line, max_gap_periods)
+    channels = {name: columns.pop(name) for name in names if name == SINGLE_CHANNEL or name in CHANNELS}
     return Run(
         path=path,
         t_s=t_s,
-        rate_dph=columns.pop("rate_dph"),
+        rate_dph=channels[_primary(list(channels))],
         temp_c=columns.pop("temp_c"),
         rate_hz=rate_hz,
         sha256=digest.hexdigest(),
         extra=columns,
+        channels=channels,
     )
+
+
+def _primary(channels: list[str]) -> str:
+    """The channel a run's `rate_dph` is (see Run)."""
+    for name in (SINGLE_CHANNEL, "rate_z_dph", *GYRO_CHANNELS):
+        if name in channels:
+            return name
+    return channels[0]
 
 
 class _Sha256(threading.Thread):
