@@ -84,6 +84,7 @@ class AsciiProtocol(Protocol):
     max_frame_len = MAX_LINE_LEN
     seq_modulus = None
     line_based = True
+    gyro_axes = Z_ONLY  # one axis, on z
 
     def __init__(self, rotfmt: str = "rate", rate_hz: float | None = None, max_jump_dph: float | None = None) -> None:
         if max_jump_dph is not None and not max_jump_dph > 0:

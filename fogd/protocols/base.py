@@ -3,7 +3,8 @@
 re-encode with compensated rates).
 
 Axes are indexed x=0, y=1, z=2; a single-axis format (DSP-3000, fogd ASCII lines) fills z and marks x and y
-absent (`axis_present` False, value NaN). Rates are deg/h, temperatures C, times s, whatever the wire says.
+absent (`axis_present` False, value NaN). Rates are deg/h, accelerations g, temperatures C, times s, whatever the
+wire says (rate or delta, radians or degrees, g or m/s per sample: converted at the edge).
 """
 
 from abc import ABC, abstractmethod
@@ -31,6 +32,8 @@ class Frame:
     'dsp3000', 'R', 'T', 'I', 'C'); sequence numbers are counted per (protocol, message).
     An axis is usable only when both `axis_present` and `axis_valid` say so; `axis_valid` is False when the
     sensor's status bit says invalid or the value is NaN/Inf. `temp_c` may be NaN (an invalid reading).
+    The accelerometers follow the same rules in `accel_g`, `accel_valid` and `accel_present` (None and no axes
+    for formats without accelerometers).
     """
 
     protocol: str
@@ -47,6 +50,9 @@ class Frame:
     comp_dph: Axes3 | None = None
     rate_comp_dph: Axes3 | None = None
     flags: int = 0
+    accel_g: Axes3 | None = None
+    accel_valid: Mask3 = NO_AXES
+    accel_present: Mask3 = NO_AXES
 
 
 class FrameError(ValueError):
@@ -70,6 +76,8 @@ class Protocol(ABC):
     max_frame_len: int
     seq_modulus: int | None  # sequence numbers wrap modulo this; None when the format has none
     line_based: bool = False  # a rejected line is skipped whole; a rejected binary frame by one byte
+    gyro_axes: Mask3 = ALL_AXES  # the gyro axes the format can carry (what a recorder makes columns of)
+    accel_axes: Mask3 = NO_AXES  # the accelerometer axes the format can carry
 
     def find(self, buf: bytes, pos: int) -> int:
         """Offset of the next candidate frame start at or after `pos`, or -1."""

@@ -5,6 +5,11 @@ Layouts, CRC and test vectors are in docs/fogd-frames.md. Every multi-byte field
 frames A/B/C end in a CRC-32/MPEG-2 over everything before it. The BIT replies end in one checksum byte that
 KVH does not document; fogd takes it as the 8-bit sum of all bytes before it (as a public KVH driver
 does) and only ever uses BIT frames as kind 'other', so a wrong guess costs a counted drop, never data.
+
+Whatever the unit is set to (=ROTFMT rate or delta, =ROTUNITS rad or deg, =LINFMT acceleration or delta
+velocity, =LINUNITS m or ft, =TEMPUNITS C or F, =DR), a Frame carries deg/h, g and C; the same settings turn
+them back into the unit's wire values. The replies to the unit's ASCII queries (?ROTFMT, ?DR, ...) are parsed
+into the same settings by `settings_from_replies`.
 """
 
 import math
@@ -25,13 +30,20 @@ FRAME_LENGTHS = {HEADER_A: 36, HEADER_B: 40, HEADER_C: 38, HEADER_BIT: 11, HEADE
 MESSAGES = {HEADER_A: "A", HEADER_B: "B", HEADER_C: "C", HEADER_BIT: "BIT", HEADER_BIT2: "BIT2"}
 
 DPH_PER_RAD_S = 180.0 / math.pi * 3600.0
+STANDARD_GRAVITY_MS2 = 9.80665  # delta velocity to g: KVH does not say which g it means; this is the standard one
+M_PER_FT = 0.3048
 ACCEL_STATUS_BITS = 0x70  # fogd's encoder marks the (zero) accels valid, as a DSP-1750 IMU does
 SEQ_MODULUS = 128
+ROTFMTS = ("rate", "delta")
+LINFMTS = ("accel", "delta")
+ANGLE_UNITS = ("rad", "deg")
+LIN_UNITS = ("m", "ft")
+TEMP_UNITS = ("C", "F")
 
-# Bodies after the 4-byte header, without the CRC: gyro xyz, accel xyz (skipped), then per format.
-_BODY_A = struct.Struct(">3f12xBBh")  # status, seq, temperature (whole degrees)
-_BODY_B = struct.Struct(">3f12xIBBh")  # time since start (us), status, seq, temperature
-_BODY_C = struct.Struct(">3f12xfBB")  # temperature C (seq % 4 == 0) or magnetometer, status, seq
+# Bodies after the 4-byte header, without the CRC: gyro xyz, accel xyz, then per format.
+_BODY_A = struct.Struct(">3f3fBBh")  # status, seq, temperature (whole degrees)
+_BODY_B = struct.Struct(">3f3fIBBh")  # time since start (us), status, seq, temperature
+_BODY_C = struct.Struct(">3f3ffBB")  # temperature C (seq % 4 == 0) or magnetometer, status, seq
 _FRAME_A = struct.Struct(">4s3f3fBBh")
 _FRAME_B = struct.Struct(">4s3f3fIBBh")
 _FRAME_C = struct.Struct(">4s3f3ffBB")
@@ -51,15 +63,18 @@ def bit_reply(bits: bytes) -> bytes:
 class KvhProtocol(Protocol):
     """KVH Format A/B/C and BIT replies; options say how the unit is configured.
 
-    rotfmt 'rate' (gyro field is angle/s) or 'delta' (angle per sample; needs rate_hz); angle_unit 'rad' or
-    'deg' (the DSP-1760 can send degrees); temp_unit 'C' or 'F' (=TEMPUNITS; Format C is always C);
-    comp_axes: the axes whose rates `reencode` replaces.
+    rotfmt 'rate' (gyro field is angle/s) or 'delta' (angle per sample; needs rate_hz, the unit's =DR);
+    angle_unit 'rad' or 'deg' (=ROTUNITS); linfmt 'accel' (accelerometer field in g, the default) or 'delta'
+    (velocity change per sample, needs rate_hz) in lin_unit 'm' or 'ft' (=LINUNITS: m/s or ft/s);
+    temp_unit 'C' or 'F' (=TEMPUNITS; Format C is always C); comp_axes and comp_accel_axes: the gyro and
+    accelerometer axes whose values `reencode` replaces.
     """
 
     name = "kvh-a"
     sync = HEADER_A[:2]
     max_frame_len = max(FRAME_LENGTHS.values())
     seq_modulus = SEQ_MODULUS
+    accel_axes = ALL_AXES
 
     def __init__(
         self,
@@ -68,21 +83,30 @@ class KvhProtocol(Protocol):
         angle_unit: str = "rad",
         temp_unit: str = "C",
         comp_axes: Sequence[int] = (0, 1, 2),
+        linfmt: str = "accel",
+        lin_unit: str = "m",
+        comp_accel_axes: Sequence[int] = (0, 1, 2),
     ) -> None:
-        if rotfmt not in ("rate", "delta"):
-            raise ConfigError(f"kvh-a: rotfmt must be 'rate' or 'delta', not {rotfmt!r}")
-        if rotfmt == "delta" and not (rate_hz and rate_hz > 0):
-            raise ConfigError("kvh-a: rotfmt 'delta' needs the unit's output rate (rate_hz > 0)")
-        if angle_unit not in ("rad", "deg"):
-            raise ConfigError(f"kvh-a: angle_unit must be 'rad' or 'deg', not {angle_unit!r}")
-        if temp_unit not in ("C", "F"):
-            raise ConfigError(f"kvh-a: temp_unit must be 'C' or 'F', not {temp_unit!r}")
-        if not set(comp_axes) <= {0, 1, 2}:
-            raise ConfigError(f"kvh-a: comp_axes must be among 0, 1, 2 (x, y, z), not {list(comp_axes)}")
+        for option, value, allowed in (("rotfmt", rotfmt, ROTFMTS), ("linfmt", linfmt, LINFMTS),
+                                       ("angle_unit", angle_unit, ANGLE_UNITS), ("lin_unit", lin_unit, LIN_UNITS),
+                                       ("temp_unit", temp_unit, TEMP_UNITS)):  # fmt: skip
+            if value not in allowed:
+                raise ConfigError(f"kvh-a: {option} must be {' or '.join(map(repr, allowed))}, not {value!r}")
+        for option, value in (("rotfmt", rotfmt), ("linfmt", linfmt)):
+            if value == "delta" and not (isinstance(rate_hz, (int, float)) and 0 < rate_hz < math.inf):
+                raise ConfigError(f"kvh-a: {option} 'delta' needs the unit's output rate (rate_hz > 0)")
+        for option, axes in (("comp_axes", comp_axes), ("comp_accel_axes", comp_accel_axes)):
+            if not set(axes) <= {0, 1, 2}:
+                raise ConfigError(f"kvh-a: {option} must be among 0, 1, 2 (x, y, z), not {list(axes)}")
         self.rotfmt, self.rate_hz, self.angle_unit, self.temp_unit = rotfmt, rate_hz, angle_unit, temp_unit
+        self.linfmt, self.lin_unit = linfmt, lin_unit
         self.comp_axes = tuple(sorted(set(comp_axes)))
+        self.comp_accel_axes = tuple(sorted(set(comp_accel_axes)))
         per_second = rate_hz if rotfmt == "delta" else 1.0
         self.dph_per_unit = (DPH_PER_RAD_S if angle_unit == "rad" else 3600.0) * per_second
+        # delta velocity (m/s or ft/s per sample) x samples per second = m/s^2 or ft/s^2
+        metres = 1.0 if lin_unit == "m" else M_PER_FT
+        self.g_per_unit = rate_hz * metres / STANDARD_GRAVITY_MS2 if linfmt == "delta" else 1.0
         self._decoders = {
             HEADER_A: self._decode_a,
             HEADER_B: self._decode_b,
@@ -110,32 +134,46 @@ class KvhProtocol(Protocol):
         valid = (bool(status & 1) and isfinite(x), bool(status & 2) and isfinite(y), bool(status & 4) and isfinite(z))
         return (x * scale, y * scale, z * scale), valid
 
+    def _accels(self, x: float, y: float, z: float, status: int) -> tuple[Axes3, Mask3]:
+        isfinite = math.isfinite
+        scale = self.g_per_unit
+        if status & 0x70 == 0x70 and isfinite(x) and isfinite(y) and isfinite(z):
+            return (x * scale, y * scale, z * scale), ALL_AXES
+        valid = (bool(status & 0x10) and isfinite(x), bool(status & 0x20) and isfinite(y),
+                 bool(status & 0x40) and isfinite(z))  # fmt: skip
+        return (x * scale, y * scale, z * scale), valid
+
     def _temp_c(self, whole_degrees: int) -> float:
         return (whole_degrees - 32) * (5.0 / 9.0) if self.temp_unit == "F" else float(whole_degrees)
 
     def _decode_a(self, raw: bytes) -> Frame:
         if not crc32_mpeg2_ok(raw):
             raise FrameError("bad_crc", "kvh-a: Format A CRC mismatch")
-        x, y, z, status, seq, temp = _BODY_A.unpack_from(raw, 4)
+        x, y, z, ax, ay, az, status, seq, temp = _BODY_A.unpack_from(raw, 4)
         rates, valid = self._rates(x, y, z, status)
-        return Frame("kvh-a", "imu", "A", seq, None, rates, valid, ALL_AXES, self._temp_c(temp), raw)
+        accels, accel_valid = self._accels(ax, ay, az, status)
+        return Frame("kvh-a", "imu", "A", seq, None, rates, valid, ALL_AXES, self._temp_c(temp), raw,
+                     accel_g=accels, accel_valid=accel_valid, accel_present=ALL_AXES)  # fmt: skip
 
     def _decode_b(self, raw: bytes) -> Frame:
         if not crc32_mpeg2_ok(raw):
             raise FrameError("bad_crc", "kvh-a: Format B CRC mismatch")
-        x, y, z, time_us, status, seq, temp = _BODY_B.unpack_from(raw, 4)
+        x, y, z, ax, ay, az, time_us, status, seq, temp = _BODY_B.unpack_from(raw, 4)
         rates, valid = self._rates(x, y, z, status)
+        accels, accel_valid = self._accels(ax, ay, az, status)
         # The uint32 microsecond clock wraps every 4294.967296 s; consumers unwrap it.
-        return Frame("kvh-a", "imu", "B", seq, time_us / 1e6, rates, valid, ALL_AXES, self._temp_c(temp), raw)
+        return Frame("kvh-a", "imu", "B", seq, time_us / 1e6, rates, valid, ALL_AXES, self._temp_c(temp), raw,
+                     accel_g=accels, accel_valid=accel_valid, accel_present=ALL_AXES)  # fmt: skip
 
     def _decode_c(self, raw: bytes) -> Frame:
         if not crc32_mpeg2_ok(raw):
             raise FrameError("bad_crc", "kvh-a: Format C CRC mismatch")
-        x, y, z, temp_or_mag, status, seq = _BODY_C.unpack_from(raw, 4)
+        x, y, z, ax, ay, az, temp_or_mag, status, seq = _BODY_C.unpack_from(raw, 4)
         rates, valid = self._rates(x, y, z, status)
-        if seq % 4 == 0:
-            return Frame("kvh-a", "imu", "C", seq, None, rates, valid, ALL_AXES, temp_or_mag, raw)
-        return Frame("kvh-a", "rate", "C", seq, None, rates, valid, ALL_AXES, None, raw)
+        accels, accel_valid = self._accels(ax, ay, az, status)
+        kind, temp_c = ("imu", temp_or_mag) if seq % 4 == 0 else ("rate", None)
+        return Frame("kvh-a", kind, "C", seq, None, rates, valid, ALL_AXES, temp_c, raw,
+                     accel_g=accels, accel_valid=accel_valid, accel_present=ALL_AXES)  # fmt: skip
 
     def _decode_bit(self, raw: bytes) -> Frame:
         if sum(raw[:-1]) & 0xFF != raw[-1]:
@@ -143,27 +181,36 @@ class KvhProtocol(Protocol):
         return Frame("kvh-a", "other", MESSAGES[raw[:4]], raw=raw)
 
     def encode(self, frame: Frame) -> bytes:
-        """Format A (message '' or 'A'), B or C from a record with rate_dph; BIT replies: see `bit_reply`."""
+        """Format A (message '' or 'A'), B or C from a record with rate_dph; BIT replies: see `bit_reply`.
+
+        A record without accel_g gets zero accelerations with status bits 4-6 set, as a DSP-1750 IMU sends.
+        """
         message = frame.message or "A"
         if frame.rate_dph is None:
             raise ValueError("kvh-a: a KVH frame needs rate_dph")
         gyro = [value / self.dph_per_unit for value in frame.rate_dph]
-        status = ACCEL_STATUS_BITS
+        if frame.accel_g is None:
+            accel, status = [0.0, 0.0, 0.0], ACCEL_STATUS_BITS
+        else:
+            accel, status = [value / self.g_per_unit for value in frame.accel_g], 0
+            for axis in range(3):
+                if frame.accel_valid[axis] and frame.accel_present[axis]:
+                    status |= 0x10 << axis
         for axis in range(3):
             if frame.axis_valid[axis] and frame.axis_present[axis]:
                 status |= 1 << axis
         seq = (frame.seq or 0) % SEQ_MODULUS
         if message == "A":
-            body = _FRAME_A.pack(HEADER_A, *gyro, 0.0, 0.0, 0.0, status, seq, self._wire_temp(frame.temp_c))
+            body = _FRAME_A.pack(HEADER_A, *gyro, *accel, status, seq, self._wire_temp(frame.temp_c))
         elif message == "B":
             if frame.t_s is None:
                 raise ValueError("kvh-a: Format B needs t_s")
             time_us = round(frame.t_s * 1e6) % 2**32
-            body = _FRAME_B.pack(HEADER_B, *gyro, 0.0, 0.0, 0.0, time_us, status, seq, self._wire_temp(frame.temp_c))
+            body = _FRAME_B.pack(HEADER_B, *gyro, *accel, time_us, status, seq, self._wire_temp(frame.temp_c))
         elif message == "C":
             temp_c = NAN if frame.temp_c is None else frame.temp_c
             temp_or_mag = temp_c if seq % 4 == 0 else 0.0
-            body = _FRAME_C.pack(HEADER_C, *gyro, 0.0, 0.0, 0.0, temp_or_mag, status, seq)
+            body = _FRAME_C.pack(HEADER_C, *gyro, *accel, temp_or_mag, status, seq)
         else:
             raise ValueError(f"kvh-a: cannot encode message {message!r}; use 'A', 'B' or 'C'")
         return body + _CRC.pack(crc32_mpeg2(body))
@@ -176,7 +223,8 @@ class KvhProtocol(Protocol):
             raise ValueError(f"kvh-a: temperature {temp_c!r} C does not fit Format A/B's int16")
         return wire
 
-    def reencode(self, frame: Frame, rate_dph: Sequence[float]) -> bytes:
+    def reencode(self, frame: Frame, rate_dph: Sequence[float], accel_g: Sequence[float] | None = None) -> bytes:
+        """As `Protocol.reencode`; with `accel_g`, the valid accelerometers of comp_accel_axes are replaced too."""
         raw = frame.raw
         if frame.rate_dph is None:
             return raw
@@ -188,6 +236,79 @@ class KvhProtocol(Protocol):
                     _GYRO.pack_into(out, 4 + 4 * axis, value)
                 except OverflowError:  # beyond float32 (a rate near its limit, compensated): infinity
                     _GYRO.pack_into(out, 4 + 4 * axis, f32(value))
+        if accel_g is not None and frame.accel_g is not None:
+            for axis in self.comp_accel_axes:
+                if frame.accel_valid[axis]:
+                    _GYRO.pack_into(out, 16 + 4 * axis, f32(accel_g[axis] / self.g_per_unit))
         _CRC.pack_into(out, len(out) - 4, crc32_mpeg2(out[:-4]))
         return bytes(out)
 
+
+
+# The unit's settings as its ASCII query replies name them (`?ROTFMT` -> `ROTFMT,DELTA`), mapped to the
+# protocol options above. =LINFMT's words are not in the manual pages fogd was written from; ACCEL / DELTA
+# follow =ROTFMT's RATE / DELTA.
+SETTING_QUERIES = ("ROTFMT", "ROTUNITS", "LINFMT", "LINUNITS", "TEMPUNITS", "DR")
+_REPLY_VALUES: dict[str, tuple[str, dict[str, str]]] = {
+    "ROTFMT": ("rotfmt", {"RATE": "rate", "DELTA": "delta"}),
+    "ROTUNITS": ("angle_unit", {"RAD": "rad", "DEG": "deg"}),
+    "LINFMT": ("linfmt", {"ACCEL": "accel", "DELTA": "delta"}),
+    "LINUNITS": ("lin_unit", {"METERS": "m", "FEET": "ft"}),
+    "TEMPUNITS": ("temp_unit", {"C": "C", "F": "F"}),
+}
+DATA_RATES_HZ = (1, 5, 10, 25, 50, 100, 250, 500, 750, 1000, 3600, 5000)  # =DR's permitted values (1775)
+
+
+def query(name: str) -> bytes:
+    """The ASCII query for one setting (`?DR\\r\\n`); the unit answers it in configuration mode."""
+    if name.upper() not in SETTING_QUERIES:
+        raise ValueError(f"kvh-a: no setting query {name!r}; known: {', '.join(SETTING_QUERIES)}")
+    return f"?{name.upper()}\r\n".encode("ascii")
+
+
+def parse_reply(line: bytes | str) -> tuple[str, object]:
+    """One reply line (`ROTFMT,DELTA`, `DR,1000`) as (protocol option, value): ('rotfmt', 'delta'),
+    ('rate_hz', 1000.0). Raises ConfigError naming the line for anything else."""
+    text = line.decode("ascii", "replace") if isinstance(line, bytes) else line
+    key, _, value = text.strip().upper().partition(",")
+    value = value.strip()
+    if key == "DR":
+        try:
+            rate_hz = float(value)
+        except ValueError:
+            rate_hz = math.nan
+        if not 0 < rate_hz <= 100_000:
+            raise ConfigError(f"kvh-a: the unit's data rate reply {text.strip()!r} is not a rate in Hz")
+        return "rate_hz", rate_hz
+    if key not in _REPLY_VALUES:
+        raise ConfigError(f"kvh-a: {text.strip()!r} is not a reply to a settings query ({', '.join(SETTING_QUERIES)})")
+    option, values = _REPLY_VALUES[key]
+    if value not in values:
+        raise ConfigError(f"kvh-a: unknown {key} setting {value!r} (known: {', '.join(values)})")
+    return option, values[value]
+
+
+def settings_from_replies(lines: Sequence[bytes | str]) -> dict[str, object]:
+    """Protocol options from the unit's reply lines; blank lines, echoes of queries and `CONFIG,...` are skipped."""
+    settings: dict[str, object] = {}
+    for line in lines:
+        text = line.decode("ascii", "replace") if isinstance(line, bytes) else line
+        if not text.strip() or text.lstrip().startswith(("?", "=")) or text.strip().upper().startswith("CONFIG"):
+            continue
+        option, value = parse_reply(text)
+        settings[option] = value
+    return settings
+
+
+def settings_reply(protocol: KvhProtocol, name: str) -> bytes:
+    """What a unit configured as `protocol` answers to `?<name>` (for emulators and tests)."""
+    key = name.upper()
+    if key == "DR":
+        if protocol.rate_hz is None:
+            raise ValueError("kvh-a: no data rate (rate_hz) to reply with")
+        return f"DR,{protocol.rate_hz:g}\r\n".encode("ascii")
+    if key not in _REPLY_VALUES:
+        raise ValueError(f"kvh-a: no setting query {name!r}; known: {', '.join(SETTING_QUERIES)}")
+    option, values = _REPLY_VALUES[key]
+    wire = {ours: theirs for theirs, ours in values.items()}[getattr(protocol, option)]
+    return f"{key},{wire}\r\n".encode("ascii")
