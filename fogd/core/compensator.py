@@ -72,10 +72,12 @@ def hold_temperature(temp_c: np.ndarray, valid: np.ndarray, previous_c: float = 
 class Compensator:
     """Stateful, chunk-size independent compensation of one gyro axis with one frozen model."""
 
-    def __init__(self, model: FrozenModel, rate_hz: float) -> None:
+    def __init__(self, model: FrozenModel, rate_hz: float, bank: InputBank | None = None) -> None:
+        """`bank`: the model's inputs from elsewhere (fogd.core.channels shares one bank between the channels
+        whose models have the same inputs); by default a bank of its own."""
         self.model = model
         self.rate_hz = float(rate_hz)
-        self.bank = InputBank(model.inputs, rate_hz)
+        self.bank = InputBank(model.inputs, rate_hz) if bank is None else bank
         self._held_temp_c = np.nan
         # the temperature rate reported with each sample: the first eq. 16 input, if the model has one
         self._rate_column = next((i for i, spec in enumerate(model.inputs) if spec.estimator is not None), None)

@@ -11,6 +11,15 @@ inputs may be `temp_lag_c` (with `tau_s`) and several `temp_rate_cps` windows, a
 `domain_guard` holds the joint-space guard of fogd.core.domain: `points` (calibration block rows in scaled units),
 `threshold` (scaled distance) and `fallback` (`{"method": "linear", "params": {"coef", "intercept"}}`, in the
 model's own input and output scaling).
+
+Version 3 is a multi-channel file (an IMU's gyros and accelerometers, fogd.core.columns.CHANNELS): `channels`
+maps each channel it covers to that channel's model, a whole version-2 document, validated as one; beside it
+only `format`, `version`, `name`, `created_utc` and `fogd_version`. Only multi-channel files are version 3: a
+single-axis model is still written as version 2, byte for byte as before, so an older fogd keeps loading what
+a single-axis training writes, and refuses a multi-channel file by its version rather than misreading it.
+`load` reads single-channel files (versions 1 and 2) as it always has and refuses a version-3 file in one line;
+`load_channels` reads any of them as a `ChannelModels` (channel name -> FrozenModel; a version-1 or -2 file
+is the one channel `rate_dph`).
 """
 
 from __future__ import annotations
@@ -24,6 +33,8 @@ import numpy as np
 
 from fogd import __version__
 from fogd.core.atomic import read_regular, replaced
+from fogd.core.channels import ChannelModels
+from fogd.core.columns import CHANNELS, SINGLE_CHANNEL
 from fogd.core.domain import DomainGuard
 from fogd.core.estimator import EstimatorSettings
 from fogd.core.frozen import FrozenModel, build_evaluator
@@ -32,8 +43,10 @@ from fogd.core.lag import MAX_TAU_S
 from fogd.errors import ModelFileError, NoModelFileError, describe_os_error
 
 MODEL_FORMAT = "fogd-model"
-MODEL_VERSION = 2
-READABLE_VERSIONS = (1, 2)
+MODEL_VERSION = 2  # a single-channel file
+READABLE_VERSIONS = (1, 2)  # of a single-channel file (and of each channel's model in a multi-channel file)
+CHANNELS_VERSION = 3  # a multi-channel file
+CHANNELS_TOP_KEYS = {"format", "version", "name", "channels", "created_utc", "fogd_version"}
 MAX_MODEL_BYTES = 32 * 1024 * 1024
 MAX_ROWS = 100_000  # support vectors, centres or polynomial terms
 MIN_SCALE = 1e-9  # input scales, RBF widths and SVR gammas: beyond 1e-9..1e9 the arithmetic under/overflows
@@ -61,9 +74,13 @@ _BINARY_MAGIC = {
 
 
 def save(path: str | Path, document: dict[str, Any], *, inputs: list[str] = ()) -> None:
-    """Write a model document (as built by `document()`), checking it loads back first. The file is replaced
-    whole (fogd.core.atomic): on a full disk the old model stays as it was; an output that is an input is refused."""
-    from_document(document, source=str(path))
+    """Write a model document (as built by `document()` or `channels_document()`), checking it loads back
+    first. The file is replaced whole (fogd.core.atomic): on a full disk the old model stays as it was; an
+    output that is an input is refused."""
+    if _is_multi_channel(document):
+        from_channels_document(document, source=str(path))
+    else:
+        from_document(document, source=str(path))
     text = json.dumps(document, indent=1, allow_nan=False)
     try:
         with replaced(str(path), inputs=inputs) as stream:
@@ -111,8 +128,42 @@ def document(
     }
 
 
+def channels_document(*, name: str, documents: dict[str, dict[str, Any]], created_utc: str) -> dict[str, Any]:
+    """A multi-channel (version 3) document, ready for `save`: `documents` maps each channel (one of
+    fogd.core.columns.CHANNELS) to its model document as built by `document()`."""
+    return {
+        "format": MODEL_FORMAT,
+        "version": CHANNELS_VERSION,
+        "name": name,
+        "channels": dict(documents),
+        "created_utc": created_utc,
+        "fogd_version": __version__,
+    }
+
+
 def load(path: str | Path) -> FrozenModel:
-    """Read and validate a model file; raises ModelFileError with one line saying what is wrong."""
+    """Read and validate a single-channel model file (version 1 or 2); raises ModelFileError with one line
+    saying what is wrong, or that the file is a multi-channel one (`load_channels` reads those)."""
+    source = str(path)
+    return from_document(_parse(path), source=source)
+
+
+def load_channels(path: str | Path) -> ChannelModels:
+    """Read and validate any model file as its models by channel: a multi-channel file's channels, or a
+    single-channel file's model as the one channel `rate_dph`; raises ModelFileError with one line."""
+    parsed = _parse(path)
+    if _is_multi_channel(parsed):
+        return from_channels_document(parsed, source=str(path))
+    model = from_document(parsed, source=str(path))
+    return ChannelModels({SINGLE_CHANNEL: model}, name=model.name, version=parsed["version"])
+
+
+def _is_multi_channel(doc: Any) -> bool:
+    return isinstance(doc, dict) and type(doc.get("version")) is int and doc["version"] == CHANNELS_VERSION
+
+
+def _parse(path: str | Path) -> Any:
+    """The file's JSON, read safely (size, binary formats, encoding, nesting, duplicate keys)."""
     source = str(path)
     try:
         data = read_regular(path, MAX_MODEL_BYTES)  # never blocks: a FIFO here would hang start-up or a reload
@@ -135,7 +186,7 @@ def load(path: str | Path) -> FrozenModel:
         raise ModelFileError(f"{source}: JSON nested too deeply; not a fogd model file") from None
     except ValueError as error:
         raise ModelFileError(f"{source}: not valid JSON ({error})") from None
-    return from_document(parsed, source=source)
+    return parsed
 
 
 def _reject_constant(name: str) -> None:
@@ -236,9 +287,38 @@ def check_rate(model: FrozenModel, rate_hz: float, source: str = "model") -> Non
         )
 
 
-def from_document(doc: Any, *, source: str = "model") -> FrozenModel:
-    """Validate a parsed model document and build the frozen model it describes."""
+def from_channels_document(doc: Any, *, source: str = "model") -> ChannelModels:
+    """Validate a parsed multi-channel (version 3) document and build each channel's frozen model."""
     check = _Checker(source)
+    check.mapping(doc, "", CHANNELS_TOP_KEYS)
+    _control_characters(doc, "", check)
+    if doc["format"] != MODEL_FORMAT:
+        check.fail("format", f"is {str(doc['format'])[:40]!r}, expected {MODEL_FORMAT!r}")
+    if check.integer(doc["version"], "version") != CHANNELS_VERSION:
+        check.fail("version", f"is {doc['version']}; a multi-channel file is version {CHANNELS_VERSION}")
+    name = check.string(doc["name"], "name")
+    check.string(doc["created_utc"], "created_utc")
+    check.string(doc["fogd_version"], "fogd_version")
+    check.mapping(doc["channels"], "channels", None)
+    if not doc["channels"]:
+        check.fail("channels", "is empty; a multi-channel file holds at least one channel's model")
+    models = {}
+    for channel, entry in doc["channels"].items():
+        if channel not in CHANNELS:
+            check.fail("channels", f"has unknown channel {channel[:40]!r}; channels are {', '.join(CHANNELS)}")
+        if _is_multi_channel(entry) and "channels" in entry:
+            check.fail(f"channels.{channel}", "is itself a multi-channel document")
+        models[channel] = from_document(entry, source=f"{source}: channel {channel}")
+    return ChannelModels(models, name=name, version=CHANNELS_VERSION)
+
+
+def from_document(doc: Any, *, source: str = "model") -> FrozenModel:
+    """Validate a parsed single-channel model document and build the frozen model it describes."""
+    check = _Checker(source)
+    if _is_multi_channel(doc) and isinstance(doc.get("channels"), dict):
+        channels = ", ".join(printable(str(name))[:40] for name in list(doc["channels"])[:len(CHANNELS)])
+        check.fail("version", f"is {CHANNELS_VERSION}: a model per channel ({channels}); this reads a single-channel "
+                              "model file (version 1 or 2)")
     check.mapping(doc, "", TOP_KEYS, optional=OPTIONAL_TOP_KEYS)
     _control_characters(doc, "", check)
     if doc["format"] != MODEL_FORMAT:

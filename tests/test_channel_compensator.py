@@ -1,0 +1,145 @@
+"""ChannelCompensator: every channel equals a Compensator of its own on that channel, whatever the chunking,
+with the inputs computed once per batch for each distinct input configuration."""
+
+from __future__ import annotations
+
+from dataclasses import fields
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from test_modelfile import make_doc
+
+from fogd.core import modelfile
+from fogd.core.channels import ChannelCompensator, ChannelModels
+from fogd.core.compensator import Compensated, Compensator
+from fogd.core.frozen import FrozenModel, Linear
+from fogd.core.inputs import InputBank, parse_inputs
+from fogd.core.runio import Run
+
+RATE_HZ = 10.0
+ROWS = 700
+NAMES = [f.name for f in fields(Compensated)]
+
+
+def lag_model() -> FrozenModel:
+    inputs = parse_inputs("temp,lags@30,120")
+    return FrozenModel(
+        method="linear", inputs=inputs, x_mean=np.zeros(3), x_scale=np.ones(3), y_mean=0.0, y_scale=1.0,
+        domain_min=np.full(3, 0.0), domain_max=np.full(3, 45.0), evaluator=Linear(np.array([0.02, -0.5, 0.45]), 0.1),
+    )  # fmt: skip
+
+
+def models() -> dict[str, FrozenModel]:
+    """Two channels on the same inputs (temp, rate@20: one bank), a kernel model among them, one on lags."""
+    return {
+        "rate_x_dph": modelfile.from_document(make_doc("linear")),
+        "rate_y_dph": lag_model(),
+        "accel_z_g": modelfile.from_document(make_doc("pso-svr")),
+    }
+
+
+def exact(channel: str) -> bool:
+    """Whether chunks of a few samples give the batch's compensation bit for bit (the linear models; a kernel
+    model's per-sample sum agrees within 1e-12, fogd.core.compensator)."""
+    return channel != "accel_z_g"
+
+
+def imu_run(seed: int, bad_temp: list[int], bad_rate: list[int]) -> Run:
+    rng = np.random.default_rng(seed)
+    temp = 20 + np.cumsum(rng.normal(0, 0.02, ROWS)) + np.linspace(0, 8, ROWS)
+    temp[bad_temp] = np.nan
+    channels = {name: rng.normal(level, 1, ROWS) for name, level in (("rate_x_dph", 5), ("rate_y_dph", -3),
+                                                                    ("rate_z_dph", 0), ("accel_z_g", 1))}  # fmt: skip
+    for name, rows in zip(channels, (bad_rate, bad_rate[::2], [], bad_rate[1::2])):
+        channels[name][rows] = np.inf
+    t_s = np.arange(ROWS) / RATE_HZ
+    return Run("imu.csv", t_s, channels["rate_x_dph"], temp, RATE_HZ, "0" * 64, channels=channels)
+
+
+def chunked(process, rows: int, chunks: list[int]) -> list:
+    parts, start = [], 0
+    for size in [*chunks, rows]:
+        parts.append(process(start, min(start + size, rows)))
+        start += size
+        if start >= rows:
+            break
+    return parts
+
+
+def joined(parts: list[Compensated]) -> dict[str, np.ndarray]:
+    return {name: np.concatenate([np.asarray(getattr(part, name)) for part in parts]) for name in NAMES}
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    chunks=st.lists(st.integers(1, 150), max_size=12),
+    bad_temp=st.lists(st.integers(0, ROWS - 1), max_size=15),
+    bad_rate=st.lists(st.integers(0, ROWS - 1), max_size=15),
+    seed=st.integers(0, 3),
+)
+def test_every_channel_equals_its_own_compensator_whatever_the_chunking(chunks, bad_temp, bad_rate, seed):
+    run = imu_run(seed, bad_temp, bad_rate)
+    stale = np.zeros(ROWS, dtype=bool)
+    stale[bad_temp[:3]] = True
+    valid = {"rate_y_dph": np.arange(ROWS) % 97 != 0}
+    several = ChannelCompensator(models(), RATE_HZ)
+    assert several.banks == 2
+    streamed = chunked(lambda a, b: several.process(
+        {name: values[a:b] for name, values in run.channels.items()}, run.temp_c[a:b],
+        rate_valid={name: v[a:b] for name, v in valid.items()}, temp_stale=stale[a:b]), ROWS, chunks)  # fmt: skip
+    whole = ChannelCompensator(models(), RATE_HZ).process(run.channels, run.temp_c, rate_valid=valid, temp_stale=stale)
+    assert set(whole) == set(models())
+    for channel, model in models().items():
+        alone = run.channel(channel)  # the channel as a single-axis run, as fogd-replay of one axis sees it
+        single = Compensator(model, RATE_HZ)
+        own = joined(chunked(lambda a, b: single.process(alone.rate_dph[a:b], alone.temp_c[a:b],
+                                                         rate_valid=valid[channel][a:b] if channel in valid else None,
+                                                         temp_stale=stale[a:b]), ROWS, chunks))  # fmt: skip
+        mine = joined([part[channel] for part in streamed])
+        for name in NAMES:  # the same code on the same rows: bit for bit
+            np.testing.assert_array_equal(mine[name], own[name], err_msg=f"{channel} {name}")
+        for name in NAMES:  # streaming against one batch: as the single-channel compensator promises
+            batch = np.asarray(getattr(whole[channel], name))
+            if name in ("comp_dph", "rate_comp_dph") and not exact(channel):
+                np.testing.assert_allclose(mine[name], batch, rtol=1e-12, atol=1e-12, err_msg=f"{channel} {name}")
+            else:
+                np.testing.assert_array_equal(mine[name], batch, err_msg=f"{channel} {name}")
+
+
+def test_inputs_are_computed_once_per_batch_for_each_configuration(monkeypatch):
+    run = imu_run(0, [], [])
+    calls: list[int] = []
+    update, update_one = InputBank.update, InputBank.update_one
+    monkeypatch.setattr(InputBank, "update", lambda self, temp: calls.append(len(self.specs)) or update(self, temp))
+    monkeypatch.setattr(InputBank, "update_one", lambda self, temp: calls.append(len(self.specs)) or update_one(self, temp))
+    several = ChannelCompensator(models(), RATE_HZ)
+    several.process(run.channels, run.temp_c[:ROWS])  # one batch: each bank once
+    assert sorted(calls) == [2, 3]
+    calls.clear()
+    several.process({name: values[:5] for name, values in run.channels.items()}, run.temp_c[:5])  # 5 samples, one by one
+    assert sorted(calls) == [2] * 5 + [3] * 5
+
+
+def test_a_channel_the_models_cover_must_be_given():
+    with pytest.raises(ValueError, match="accel_z_g"):
+        ChannelCompensator(models(), RATE_HZ).process({"rate_x_dph": np.ones(3), "rate_y_dph": np.ones(3)}, np.full(3, 20.0))
+
+
+def test_reset_forgets_every_channel():
+    run = imu_run(1, [], [])
+    several = ChannelCompensator(models(), RATE_HZ)
+    first = several.process(run.channels, run.temp_c)
+    several.reset()
+    again = several.process(run.channels, run.temp_c)
+    for channel in first:
+        np.testing.assert_array_equal(first[channel].comp_dph, again[channel].comp_dph)
+    assert several.warmup == 199  # rate@20 s at 10 Hz
+
+
+def test_process_few_takes_lists_and_gives_lists():
+    several = ChannelCompensator(ChannelModels(models(), name="m", version=3), RATE_HZ)
+    out = several.process_few({"rate_x_dph": [1.0], "rate_y_dph": [2.0], "accel_z_g": [1.0]}, [20.0],
+                              {"rate_x_dph": [True], "rate_y_dph": [False], "accel_z_g": [True]}, [False])  # fmt: skip
+    assert isinstance(out["rate_y_dph"].rate_comp_dph, list) and out["rate_y_dph"].rate_comp_dph == [2.0]
