@@ -1,4 +1,5 @@
-"""`fogd-sim`: write a simulated thermal-chamber FOG run as a CSV (`t_s,rate_dph,temp_c,true_error_dph`).
+"""`fogd-sim`: write a simulated thermal-chamber FOG run as a CSV (`t_s,rate_dph,temp_c,true_error_dph`), or with
+--imu a three-axis IMU's (`t_s,rate_x_dph,...,accel_z_g,temp_c,true_error_<channel>...`).
 
 This module owns the command line only: parsing and checking options, turning them into a profile and
 `SimParams`, and writing the run with `fogd.core.runio.write_csv`. The physics lives in `fogd.simulation.simulator`, the
@@ -12,10 +13,12 @@ import math
 import os
 import sys
 import time
+from collections.abc import Callable
 
 import numpy as np
 
 from fogd.cli.common import ArgumentParser
+from fogd.core.columns import ACCEL_CHANNELS, truth_column
 from fogd.core.numbers import number_in, seed
 from fogd.core.runio import write_csv
 from fogd.errors import FogdError, UsageError
@@ -25,6 +28,7 @@ from fogd.simulation.simulator import (
     MAX_RATE_HZ,
     MIN_RATE_HZ,
     NOISE_PRESETS,
+    IMU_CHANNELS,
     SENSOR_MOUNTS,
     THERMAL_STRUCTURES,
     SimParams,
@@ -55,7 +59,11 @@ def _parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Simulate a fibre-optic gyro in a thermal chamber and write the run as CSV with columns\n"
         "t_s (s), rate_dph (deg/h), temp_c (the temperature sensor's report, C) and true_error_dph\n"
-        "(the thermal error alone, deg/h; rate_dph - true_error_dph is the best possible compensation).",
+        "(the thermal error alone, deg/h; rate_dph - true_error_dph is the best possible compensation).\n"
+        "With --imu: a three-axis IMU instead, t_s, rate_x_dph, rate_y_dph, rate_z_dph (deg/h), accel_x_g,\n"
+        "accel_y_g, accel_z_g (g; gravity on z), temp_c and true_error_<channel> for each; rate_z_dph is the\n"
+        "single-axis rate_dph of the same seed, number for number, and every other channel has its own\n"
+        "thermal error (other coefficients and signs, of the same coil temperatures) and its own noise.",
         epilog=f"built-in profiles:\n{builtins}\n\n"
         "A profile file is a YAML list of [duration_s, target_c] pairs: the run starts at the first target\n"
         "and each segment moves linearly to its target over its duration (a soak repeats the target).",
@@ -104,6 +112,8 @@ def _parser() -> argparse.ArgumentParser:
         help=f"latitude for the Earth rate on the vertical sensing axis, deg (default: {DEFAULTS.latitude_deg:g})")
     add("--no-noise", action="store_true",
         help="no ARW, bias instability, turn-on bias or sensor noise (Earth rate and quantisation stay)")
+    add("--imu", action="store_true",
+        help="write a three-axis IMU (three gyros, three accelerometers) instead of the single-axis gyro")
     add("--list-profiles", action="store_true", help="print the built-in profile names and exit")
     return parser
 
@@ -133,7 +143,7 @@ def _run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     run = Simulation(profile, args.rate_hz, args.seed, params)
     try:
-        _write(args.output, run)
+        _write(args.output, run, imu=args.imu)
     except FogdError as error:
         if args.output == "-" and isinstance(error.__context__, BrokenPipeError):
             # The reader (e.g. `head`) has gone: stop quietly like other Unix filters.
@@ -175,7 +185,7 @@ def _params(args: argparse.Namespace) -> SimParams:
     )
 
 
-def _write(path: str, run: Simulation) -> None:
+def _write(path: str, run: Simulation, imu: bool = False) -> None:
     params = run.params
     comments = [
         f"fogd-sim run: profile {run.profile.name} ({run.profile.describe()})",
@@ -189,28 +199,35 @@ def _write(path: str, run: Simulation) -> None:
         f"(latitude {params.latitude_deg:g} deg)",
         "true_error_dph is the thermal error alone; rate_dph - true_error_dph is the best possible compensation",
     ]
-    blocks = _Blocks(run)
-    columns = {name: _Column(blocks, name) for name in ("t_s", "rate_dph", "temp_c", "true_error_dph")}
-    formats = {
-        "t_s": "%.6f",
-        "rate_dph": "%.6f",
-        "temp_c": f"%.{_decimals(params.sensor_resolution_c)}f",
-        "true_error_dph": "%.7f",
-    }
+    temp_format = f"%.{_decimals(params.sensor_resolution_c)}f"
+    if imu:
+        comments[-1] = ("an IMU: gravity on z; true_error_<channel> is that channel's thermal error alone (deg/h or g); "
+                        f"accelerometer noise {params.accel_noise_g:g} g x sqrt(rate), turn-on bias "
+                        f"{params.accel_turn_on_bias_g:g} g")  # fmt: skip
+        blocks = _Blocks(run, run.imu_columns)
+        formats = {"t_s": "%.6f"}
+        formats.update({name: "%.9f" if name in ACCEL_CHANNELS else "%.6f" for name in IMU_CHANNELS})
+        formats["temp_c"] = temp_format
+        formats.update({truth_column(name): "%.10f" if name in ACCEL_CHANNELS else "%.7f" for name in IMU_CHANNELS})
+    else:
+        blocks = _Blocks(run, run.columns)
+        formats = {"t_s": "%.6f", "rate_dph": "%.6f", "temp_c": temp_format, "true_error_dph": "%.7f"}
+    columns = {name: _Column(blocks, name) for name in formats}
     write_csv(path, columns, formats, comments=comments)
 
 
 class _Blocks:
     """The run's rows made one slice at a time; write_csv asks every column for the same slice in turn."""
 
-    def __init__(self, run: Simulation) -> None:
+    def __init__(self, run: Simulation, make: Callable[[int, int], dict[str, np.ndarray]]) -> None:
         self.run = run
+        self.make = make
         self.rows: tuple[int, int] | None = None
         self.columns: dict[str, np.ndarray] = {}
 
     def get(self, name: str, start: int, stop: int) -> np.ndarray:
         if self.rows != (start, stop):
-            self.rows, self.columns = (start, stop), self.run.columns(start, stop)
+            self.rows, self.columns = (start, stop), self.make(start, stop)
         return self.columns[name]
 
 

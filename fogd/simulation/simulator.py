@@ -16,6 +16,12 @@ hysteresis), so a model fed the sensor's temperature can never be perfect. Angle
 instability, a turn-on bias and the Earth rate are added on top and are not part of `true_error_dph`. The
 sensor reports a slow, noisy, quantised, sample-and-hold temperature. Everything is seeded and
 reproducible.
+
+`Simulation.imu_columns` makes the same run as a three-axis IMU (`IMU_CHANNELS`): z is the single-axis gyro
+above, number for number; x and y are gyros whose thermal errors are other functions of the same coil states
+(other coefficients and signs, the static term taken nearer the outer or the inner layer); three
+accelerometers (g, gravity on z) have their own thermal errors of the same coil states. Every channel draws
+its own noise, and each has its own true-error column.
 """
 
 from __future__ import annotations
@@ -27,6 +33,7 @@ import numpy as np
 from scipy.linalg import expm
 from scipy.signal import lfilter
 
+from fogd.core.columns import ACCEL_CHANNELS, CHANNELS, GYRO_CHANNELS, truth_column
 from fogd.simulation.profiles import Profile
 
 EARTH_RATE_DPH = 15.041
@@ -79,12 +86,15 @@ class SimParams:
     turn_on_bias_dph: float = 0.02
     latitude_deg: float = 30.5
     thermal_step_s: float = 0.5
+    accel_noise_g: float = 2e-5  # accelerometer white noise: per-sample std = this x sqrt(rate_hz), g
+    accel_turn_on_bias_g: float = 2e-4  # std of each accelerometer's turn-on bias, g
 
     def __post_init__(self) -> None:
         positive = ("chamber_tau_s", "housing_tau_s", "coil_outer_tau_s", "coil_inner_tau_s",
                     "coil_diffusion_tau_s", "baseplate_tau_s", "sensor_tau_s", "sensor_rate_hz",
                     "sensor_resolution_c", "static_half_span_c", "hysteresis_deadband_c", "thermal_step_s")
-        non_negative = ("sensor_noise_c", "hysteresis_dph", "arw_dpsh", "bias_instability_dph", "turn_on_bias_dph")
+        non_negative = ("sensor_noise_c", "hysteresis_dph", "arw_dpsh", "bias_instability_dph", "turn_on_bias_dph",
+                        "accel_noise_g", "accel_turn_on_bias_g")
         for name, allowed in (("thermal", THERMAL_STRUCTURES), ("sensor_on", SENSOR_MOUNTS)):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} must be one of {', '.join(allowed)}, got {getattr(self, name)!r}")
@@ -109,7 +119,8 @@ class SimParams:
 
     def without_noise(self) -> SimParams:
         """The same FOG with no random terms (the Earth rate and the sensor quantisation stay)."""
-        return replace(self, sensor_noise_c=0.0, arw_dpsh=0.0, bias_instability_dph=0.0, turn_on_bias_dph=0.0)
+        return replace(self, sensor_noise_c=0.0, arw_dpsh=0.0, bias_instability_dph=0.0, turn_on_bias_dph=0.0,
+                       accel_noise_g=0.0, accel_turn_on_bias_g=0.0)
 
 
 def params_for(noise: str = "tactical", thermal: str = "lumped", **overrides: object) -> SimParams:
@@ -120,6 +131,54 @@ def params_for(noise: str = "tactical", thermal: str = "lumped", **overrides: ob
     if noise not in NOISE_PRESETS:
         raise ValueError(f"noise must be one of {', '.join(NOISE_PRESETS)}, got {noise!r}")
     return SimParams(**{**NOISE_PRESETS[noise], "thermal": thermal, **overrides})  # type: ignore[arg-type]
+
+
+IMU_CHANNELS = CHANNELS  # rate_x_dph, rate_y_dph, rate_z_dph, accel_x_g, accel_y_g, accel_z_g
+GRAVITY_G = (0.0, 0.0, 1.0)  # the IMU sits level, z up: +1 g on z, as a KVH reports it
+
+
+@dataclass(frozen=True)
+class ChannelError:
+    """One IMU channel's thermal error as a function of the coil states, in the channel's unit (deg/h or g).
+
+    The static cubic is taken at a mix of the coil's temperatures (`coil_mix` -1: the innermost layer, 0: the
+    mean, +1: the outermost), the Shupe-like terms on the coil's mean temperature rate and gradient rate, and
+    a play hysteresis of the mixed temperature."""
+
+    static: tuple[float, float, float]
+    rate_per_cps: float
+    gradient_rate_per_cps: float
+    hysteresis: float
+    coil_mix: float
+
+
+# x and y gyros as multiples of the single-axis (z) gyro's terms, so a noise grade or an override of SimParams
+# scales all three; signs and the coil mix differ so that no channel is a multiple of another.
+_GYRO_SCALES = {
+    "rate_x_dph": ((-0.7, 1.3, -0.5), -0.6, 1.4, 0.8, 0.7),
+    "rate_y_dph": ((-0.3, 2.0, 0.6), 1.3, -0.7, 1.2, -0.7),
+}
+# The accelerometers' own terms (g): a few mg over the chamber's span, like a tactical MEMS accelerometer.
+ACCEL_ERRORS = {
+    "accel_x_g": ChannelError((1.2e-3, -4e-4, 3e-4), 6e-2, 0.0, 5e-5, 1.0),
+    "accel_y_g": ChannelError((-3e-4, 1.2e-3, -2e-4), -3e-2, 5e-3, 0.0, 0.3),
+    "accel_z_g": ChannelError((-2e-4, 3e-4, 9e-4), 1e-2, -2e-2, 5e-5, -0.3),
+}
+
+
+def channel_errors(params: SimParams) -> dict[str, ChannelError]:
+    """Every IMU channel's thermal error terms; rate_z_dph is the single-axis gyro's."""
+    z = ChannelError(params.static_dph, params.shupe_rate_dph_per_cps, params.shupe_gradient_rate_dph_per_cps,
+                     params.hysteresis_dph, 0.0)  # fmt: skip
+    errors = {}
+    for channel, (static, rate, gradient, hysteresis, mix) in _GYRO_SCALES.items():
+        errors[channel] = ChannelError(
+            tuple(k * c for k, c in zip(static, z.static)), rate * z.rate_per_cps,  # type: ignore[arg-type]
+            gradient * z.gradient_rate_per_cps, hysteresis * z.hysteresis, mix,
+        )  # fmt: skip
+    errors["rate_z_dph"] = z
+    errors.update(ACCEL_ERRORS)
+    return {channel: errors[channel] for channel in IMU_CHANNELS}
 
 
 @dataclass
@@ -194,6 +253,8 @@ class Simulation:
         self.turn_on_bias_dph = float(turn_on_rng.normal(0.0, params.turn_on_bias_dph))
         self.earth_rate_dph = EARTH_RATE_DPH * math.sin(math.radians(params.latitude_deg))  # vertical (zenith) axis
         self.sensor_c = _sensor_readings_c(self.duration_s, self.grid_t_s, self.states[net.sensor], params, sensor_rng)
+        self._state_rates = rates
+        self._imu: dict[str, tuple[np.ndarray, np.ndarray, float]] | None = None
 
     @property
     def duration_s(self) -> float:
@@ -209,6 +270,75 @@ class Simulation:
         held = np.floor(t_s * self.params.sensor_rate_hz + 1e-9).astype(np.int64)
         temp_c = self.sensor_c[np.minimum(held, self.sensor_c.size - 1)]
         return {"t_s": t_s, "rate_dph": rate_dph, "temp_c": temp_c, "true_error_dph": true_error_dph}
+
+    def imu_columns(self, start: int = 0, stop: int | None = None) -> dict[str, np.ndarray]:
+        """Rows [start, stop) of the run as a three-axis IMU: t_s, the IMU_CHANNELS, temp_c, and
+        true_error_<channel> for each. rate_z_dph and its truth are `columns`' rate_dph and true_error_dph."""
+        single = self.columns(start, stop)
+        t_s = single["t_s"]
+        start, stop = int(start), int(start) + t_s.size
+        columns = {"t_s": t_s}
+        truths = {}
+        for index, channel in enumerate(IMU_CHANNELS):
+            if channel == "rate_z_dph":
+                columns[channel], truths[channel] = single["rate_dph"], single["true_error_dph"]
+                continue
+            error_grid, bias_grid, offset = self._imu_grids()[channel]
+            truth = np.interp(t_s, self.grid_t_s, error_grid)
+            value = truth + offset + self._white(index, start, stop)
+            if bias_grid is not None:
+                value += np.interp(t_s, self.grid_t_s, bias_grid)
+            columns[channel], truths[channel] = value, truth
+        columns["temp_c"] = single["temp_c"]
+        columns.update({truth_column(channel): truths[channel] for channel in IMU_CHANNELS})
+        return columns
+
+    def _imu_grids(self) -> dict[str, tuple[np.ndarray, np.ndarray | None, float]]:
+        """Per channel (but z): thermal error and bias instability on the thermal grid, and the constant
+        offset (turn-on bias plus Earth rate or gravity). Made once, on first use, from channel-own seeds."""
+        if self._imu is not None:
+            return self._imu
+        params, net = self.params, self.network
+        coil = list(net.coil)
+        states, rates = self.states[coil], self._state_rates[coil]
+        mean_c, mean_rate = states.mean(axis=0), rates.mean(axis=0)
+        gradient_rate = rates[0] - rates[-1]
+        earth = {"rate_x_dph": EARTH_RATE_DPH * math.cos(math.radians(params.latitude_deg)), "rate_y_dph": 0.0}
+        self._imu = {}
+        for index, (channel, error) in enumerate(channel_errors(params).items()):
+            if channel == "rate_z_dph":
+                continue
+            mix = error.coil_mix
+            coil_c = mean_c + max(mix, 0.0) * (states[0] - mean_c) + max(-mix, 0.0) * (states[-1] - mean_c)
+            x = (coil_c - params.static_ref_c) / params.static_half_span_c
+            c1, c2, c3 = error.static
+            grid = x * (c1 + x * (c2 + x * c3)) + error.rate_per_cps * mean_rate + error.gradient_rate_per_cps * gradient_rate
+            if error.hysteresis:
+                grid = grid + error.hysteresis * _played(coil_c, params.hysteresis_deadband_c)
+            turn_on_rng, bias_rng = (np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(key, index)))
+                                     for key in (4, 5))  # fmt: skip
+            if channel in GYRO_CHANNELS:
+                bias = _bias_instability_dph(self.grid_t_s.size, params, bias_rng)
+                offset = earth[channel] + float(turn_on_rng.normal(0.0, params.turn_on_bias_dph))
+            else:
+                bias = None  # the accelerometers' slow noise is not modelled: white noise and a turn-on bias
+                offset = GRAVITY_G[ACCEL_CHANNELS.index(channel)] + float(turn_on_rng.normal(0.0, params.accel_turn_on_bias_g))
+            self._imu[channel] = (grid, bias, offset)
+        return self._imu
+
+    def _white(self, index: int, start: int, stop: int) -> np.ndarray | float:
+        """Channel `index`'s white noise for rows [start, stop), drawn per fixed block like `_arw_dph`."""
+        gyro = IMU_CHANNELS[index] in GYRO_CHANNELS
+        std = (60.0 * self.params.arw_dpsh if gyro else self.params.accel_noise_g) * math.sqrt(self.rate_hz)
+        if std == 0 or stop <= start:
+            return 0.0
+        size = self.ARW_BLOCK_ROWS
+        first, last = start // size, (stop - 1) // size
+        blocks = [
+            np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(6, index, block))).normal(0.0, std, size)
+            for block in range(first, last + 1)
+        ]
+        return np.concatenate(blocks)[start - first * size : stop - first * size]
 
     def run(self) -> SimRun:
         """The whole run, with the thermal states at the output rate for diagnostics."""
@@ -321,6 +451,16 @@ def _hysteresis_dph(coil_c: np.ndarray, params: SimParams) -> np.ndarray:
         position_c = min(max(position_c, temp_c - width_c), temp_c + width_c)
         played[k] = position_c
     return params.hysteresis_dph * (coil_c - played) / width_c
+
+
+def _played(coil_c: np.ndarray, width_c: float) -> np.ndarray:
+    """The play operator's normalised output, (T - played) / width: +1 after heating, -1 after cooling."""
+    played = np.empty_like(coil_c)
+    position_c = float(coil_c[0])
+    for k, temp_c in enumerate(coil_c.tolist()):
+        position_c = min(max(position_c, temp_c - width_c), temp_c + width_c)
+        played[k] = position_c
+    return (coil_c - played) / width_c
 
 
 def _bias_instability_dph(size: int, params: SimParams, rng: np.random.Generator) -> np.ndarray:
