@@ -164,9 +164,9 @@ def test_any_finite_frame_decodes_and_encodes_back_to_its_own_bytes(
     garbage=st.lists(st.binary(max_size=40), min_size=13, max_size=13),
 )
 def test_imu_frames_are_found_whole_in_any_garbage(accels, garbage):
-    frames = [KVH.encode(Frame("kvh-a", "imu", "A", seq, None, (1.0, 2.0, 3.0), ALL, ALL, 20.0,
-                               accel_g=accel, accel_valid=ALL, accel_present=ALL))  # fmt: skip
-              for seq, accel in enumerate(accels)]
+    records = [Frame("kvh-a", "imu", "A", seq, None, (1.0, 2.0, 3.0), ALL, ALL, 20.0, accel_g=accel, accel_valid=ALL,
+                     accel_present=ALL) for seq, accel in enumerate(accels)]  # fmt: skip
+    frames = [KVH.encode(record) for record in records]
     stream = b"".join(junk + frame for junk, frame in zip(garbage, frames)) + garbage[-1]
     lexer = Lexer(KVH)
     decoded = [frame for frame in lexer.feed(stream) + lexer.flush() if frame.kind == "imu"]
@@ -178,8 +178,8 @@ def test_settings_replies_parse_into_protocol_options_and_back():
     configured = KvhProtocol(rotfmt="delta", linfmt="delta", lin_unit="ft", angle_unit="deg", temp_unit="F", rate_hz=1000)
     replies = [b"CONFIG,1\r\n", b"?ROTFMT\r\n"] + [settings_reply(configured, name) for name in SETTING_QUERIES]
     options = settings_from_replies(replies)
-    assert options == {"rotfmt": "delta", "angle_unit": "deg", "linfmt": "delta", "lin_unit": "ft", "temp_unit": "F",
-                       "rate_hz": 1000.0}  # fmt: skip
+    expected = {"rotfmt": "delta", "angle_unit": "deg", "linfmt": "delta", "lin_unit": "ft", "temp_unit": "F", "rate_hz": 1000.0}
+    assert options == expected
     assert protocols.get("kvh-a", **options).g_per_unit == configured.g_per_unit
     assert query("dr") == b"?DR\r\n"
     assert parse_reply("rotfmt,rate\n") == ("rotfmt", "rate")

@@ -12,7 +12,13 @@ from fogd.core.columns import ACCEL_CHANNELS, CHANNELS, GYRO_CHANNELS, truth_col
 from fogd.core.runio import read_run
 from fogd.simulation import profiles
 from fogd.simulation.profiles import Profile
-from fogd.simulation.simulator import EARTH_RATE_DPH, IMU_CHANNELS, SimParams, Simulation, channel_errors
+from fogd.simulation.simulator import (
+    EARTH_RATE_DPH,
+    IMU_CHANNELS,
+    SimParams,
+    Simulation,
+    channel_errors,
+)
 
 CYCLE = profiles.builtin("cycle")
 SHORT = Profile("r", ((600.0, 20.0), (1800.0, 45.0), (1200.0, 45.0), (1800.0, 10.0)))

@@ -2,7 +2,8 @@
 
 It runs the daemon's reader thread (same lexer, same reconnect after an unplug) and writes one row per rate
 sample of the chosen axis with the temperature held per frame; rate samples before the first temperature
-are skipped. Time is the device's clock where the protocol has one, else the sample count / --rate-hz. With
+are skipped. With --channels it writes every chosen channel of an IMU instead
+(t_s,rate_x_dph,...,accel_z_g,temp_c, the channels the protocol carries; NaN where a frame marks one invalid). Time is the device's clock where the protocol has one, else the sample count / --rate-hz. With
 --decimate N each row is the mean of N consecutive samples (time, rate and temperature): a 1 kHz gyro makes
 about 700 MB in 5 hours, and fogd-train averages over 100 s blocks anyway. A
 live status line shows frames, temperature, temperature rate (eq. 16 with the default window) and drops;
@@ -22,11 +23,12 @@ import numpy as np
 
 from fogd import protocols
 from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, run
-from fogd.core.columns import RUN_COLUMNS
+from fogd.core.columns import ACCEL_CHANNELS, CHANNELS, GYRO_CHANNELS, RUN_COLUMNS
 from fogd.core.estimator import EstimatorSettings, TempRateEstimator
 from fogd.core.numbers import positive_float, positive_int
-from fogd.errors import DeviceError, describe_os_error
-from fogd.protocols.base import Frame
+from fogd.errors import DeviceError, UsageError, describe_os_error
+from fogd.protocols.base import Frame, Protocol
+from fogd.protocols.kvh import ANGLE_UNITS, LIN_UNITS, LINFMTS, ROTFMTS, TEMP_UNITS
 from fogd.protocols.lexer import Lexer
 from fogd.serving.daemon import RING_CAPACITY, SampleClock, TemperatureHold
 from fogd.serving.reader import Reader
@@ -38,6 +40,7 @@ AXES = ("x", "y", "z")
 FLUSH_INTERVAL_S = 1.0
 LIVE_INTERVAL_S = 0.5
 IDLE_WAIT_S = 0.1
+UNIT_DEFAULTS = {"rotfmt": "rate", "angle_unit": "rad", "linfmt": "accel", "lin_unit": "m", "temp_unit": "C"}
 
 log = logging.getLogger("fogd.record")
 
@@ -47,7 +50,10 @@ def parser() -> ArgumentParser:
         prog=PROG,
         description="Record a FOG run from a serial port as CSV t_s,rate_dph,temp_c (the input of fogd-train). "
         "Bad frames are counted and dropped; an unplugged port is reopened and recording continues. "
-        "Stop with Ctrl-C or SIGTERM.",
+        "Stop with Ctrl-C or SIGTERM. By default one gyro axis is recorded (--axis), for every protocol; "
+        "a KVH IMU's frames carry three gyros and three accelerometers: --channels all records them all in one "
+        "run (t_s,rate_x_dph,rate_y_dph,rate_z_dph,accel_x_g,accel_y_g,accel_z_g,temp_c; fogd frames: the "
+        "gyros; ascii: z only). Whatever the unit's output settings, the file holds deg/h, g and C.",
         formatter_class=DefaultsHelpFormatter,
     )
     p.add_argument("--port", required=True, metavar="PATH", help="serial port the FOG is on")
@@ -55,8 +61,19 @@ def parser() -> ArgumentParser:
     p.add_argument("--baud", type=positive_int, default=921600, help="baud rate")
     p.add_argument("-o", "--output", required=True, metavar="RUN.csv", help="CSV file to write (replaced)")
     p.add_argument("--rate-hz", type=positive_float, default=1000.0,
-                   help="FOG sample rate in Hz: the time step where the protocol has no timestamp")  # fmt: skip
-    p.add_argument("--axis", default="z", choices=AXES, help="gyro axis to record")
+                   help="FOG sample rate in Hz (a KVH's =DR): the time step where the protocol has no timestamp, and "
+                   "the sample period of delta output")  # fmt: skip
+    p.add_argument("--axis", default=None, choices=AXES, help="gyro axis to record, as rate_dph (default: z)")
+    p.add_argument("--channels", metavar="all|LIST", default=None,
+                   help="record these channels instead of one axis: 'all' (every channel the protocol carries) or a "
+                   f"comma-separated list of {','.join(CHANNELS)}")  # fmt: skip
+    unit = p.add_argument_group("kvh-a unit settings (what the unit is set to; decoded to deg/h and g)")
+    unit.add_argument("--rotfmt", choices=ROTFMTS, default="rate", help="=ROTFMT: rate or delta angle per sample")
+    unit.add_argument("--angle-unit", choices=ANGLE_UNITS, default="rad", help="=ROTUNITS")
+    unit.add_argument("--linfmt", choices=LINFMTS, default="accel",
+                      help="=LINFMT: accelerometers in g, or delta velocity per sample")  # fmt: skip
+    unit.add_argument("--lin-unit", choices=LIN_UNITS, default="m", help="=LINUNITS: delta velocity in m/s or ft/s")
+    unit.add_argument("--temp-unit", choices=TEMP_UNITS, default="C", help="=TEMPUNITS")
     p.add_argument("--duration-s", type=positive_float, default=None, help="stop after this many seconds")
     p.add_argument("--decimate", metavar="N", type=positive_int, default=1,
                    help="write the mean of every N samples as one row (N times smaller file; at 1 kHz, 10 gives "
@@ -70,10 +87,13 @@ def parser() -> ArgumentParser:
 class Recorder:
     """Turns batches of ring frames into CSV rows and keeps what the status line shows."""
 
-    def __init__(self, stream: IO[str], axis: int, rate_hz: float, decimate: int = 1) -> None:
+    def __init__(self, stream: IO[str], axis: int, rate_hz: float, decimate: int = 1,
+                 channels: Sequence[str] | None = None) -> None:  # fmt: skip
         self.stream = stream
         self.decimate = decimate
-        self._pending = (np.empty(0), np.empty(0), np.empty(0))  # samples waiting for a full group of `decimate`
+        self.channels = list(channels) if channels else None
+        width = 3 if self.channels is None else 2 + len(self.channels)
+        self._pending = tuple(np.empty(0) for _ in range(width))  # samples waiting for a full group of `decimate`
         self.axis = axis
         self.temperature = TemperatureHold()
         self.clock = SampleClock(rate_hz)
@@ -83,7 +103,13 @@ class Recorder:
         self.temp_c = float("nan")
         self.temp_rate_cps = float("nan")
 
+    def header(self) -> str:
+        return ",".join(RUN_COLUMNS if self.channels is None else ("t_s", *self.channels, "temp_c")) + "\n"
+
     def write(self, batch: tuple[list[Frame], list[float]]) -> None:
+        if self.channels is not None:
+            self._write_channels(batch)
+            return
         samples = self.temperature.rate_samples(*batch, self.axis)
         temp_c = np.array(samples.temp_c, dtype=np.float64)
         t_s = np.array(self.clock.times(samples.device_s), dtype=np.float64)
@@ -105,12 +131,66 @@ class Recorder:
             self.temp_rate_cps = float(self.temp_rate.update(finite)[-1])
             self.temp_c = float(finite[-1])
 
+    def _write_channels(self, batch: tuple[list[Frame], list[float]]) -> None:
+        """Every chosen channel of each rate frame; one not present and valid in a frame is NaN."""
+        frames = batch[0]
+        samples = self.temperature.rate_samples(*batch, 2)
+        temp_c = np.array(samples.temp_c, dtype=np.float64)
+        t_s = np.array(self.clock.times(samples.device_s), dtype=np.float64)
+        getters = [_channel_getter(name) for name in self.channels]
+        values = np.array([[get(frames[row]) for get in getters] for row in samples.rows], dtype=np.float64)
+        known = ~np.isnan(temp_c)
+        self.skipped_no_temp += int((~known).sum())
+        if not known.any():
+            return
+        columns = (t_s[known], *values[known].T, temp_c[known])
+        if self.decimate > 1:
+            columns = self._averaged(*columns)
+            if not columns[0].size:
+                return
+        # repr keeps every value exactly as decoded, so a replay of this file sees what the wire carried
+        rows = zip(*(column.tolist() for column in columns))
+        self.stream.write("".join(f"{row[0]:.6f}," + ",".join(map(repr, row[1:])) + "\n" for row in rows))
+        temps = columns[-1]
+        self.rows += temps.size
+        finite = temps[np.isfinite(temps)]
+        if finite.size:
+            self.temp_rate_cps = float(self.temp_rate.update(finite)[-1])
+            self.temp_c = float(finite[-1])
+
     def _averaged(self, *columns: np.ndarray) -> tuple[np.ndarray, ...]:
         """Means of whole groups of `decimate` samples; the rest waits for the next batch."""
         joined = [np.concatenate((pending, column)) for pending, column in zip(self._pending, columns)]
         whole = joined[0].size // self.decimate * self.decimate
         self._pending = tuple(column[whole:] for column in joined)
         return tuple(column[:whole].reshape(-1, self.decimate).mean(axis=1) for column in joined)
+
+
+def _channel_getter(name: str):
+    """A function of a frame giving channel `name` (deg/h or g), NaN where the frame lacks it or marks it invalid."""
+    nan = float("nan")
+    if name in GYRO_CHANNELS:
+        axis = GYRO_CHANNELS.index(name)
+        return lambda frame: frame.rate_dph[axis] if frame.axis_valid[axis] and frame.axis_present[axis] else nan
+    axis = ACCEL_CHANNELS.index(name)
+    return lambda frame: (frame.accel_g[axis] if frame.accel_g is not None and frame.accel_valid[axis]
+                          and frame.accel_present[axis] else nan)  # fmt: skip
+
+
+def chosen_channels(text: str, protocol: Protocol) -> list[str]:
+    """--channels: 'all' (what `protocol` can carry) or a comma-separated list, in CHANNELS' order."""
+    carried = [name for axis, name in enumerate(GYRO_CHANNELS) if protocol.gyro_axes[axis]]
+    carried += [name for axis, name in enumerate(ACCEL_CHANNELS) if protocol.accel_axes[axis]]
+    if text.strip() == "all":
+        return carried
+    names = [name.strip() for name in text.split(",") if name.strip()]
+    unknown = [name for name in names if name not in CHANNELS]
+    if unknown or not names:
+        raise UsageError(f"--channels: unknown channel(s) {', '.join(unknown) or repr(text)}; use 'all' or some of {','.join(CHANNELS)}")
+    missing = [name for name in names if name not in carried]
+    if missing:
+        raise UsageError(f"--channels: {protocol.name} frames do not carry {', '.join(missing)} (they carry {','.join(carried)})")
+    return [name for name in CHANNELS if name in names]
 
 
 def status_line(recorder: Recorder, reader: Reader, ring: Ring) -> str:
@@ -127,8 +207,16 @@ def status_line(recorder: Recorder, reader: Reader, ring: Ring) -> str:
 def body(argv: Sequence[str] | None) -> int:
     args = parser().parse_args(argv)
     logging.basicConfig(stream=sys.stderr, level=logging.WARNING if args.quiet else logging.INFO, format="%(name)s: %(message)s")
-    axis = AXES.index(args.axis)
-    protocol = protocols.get(args.protocol)
+    if args.channels is not None and args.axis is not None:
+        raise UsageError("--axis records one gyro axis as rate_dph, --channels several: give one of them")
+    axis = AXES.index(args.axis or "z")
+    unit = {name: getattr(args, name) for name in UNIT_DEFAULTS}
+    changed = [f"--{name.replace('_', '-')}" for name, value in unit.items() if value != UNIT_DEFAULTS[name]]
+    if changed and args.protocol != "kvh-a":
+        raise UsageError(f"{', '.join(changed)} describe a KVH unit's output: they apply to --protocol kvh-a only")
+    options = {**unit, "rate_hz": args.rate_hz} if args.protocol == "kvh-a" else {}
+    protocol = protocols.get(args.protocol, **options)
+    channels = None if args.channels is None else chosen_channels(args.channels, protocol)
     port = open_port(args.port, args.baud)
     try:
         stream = open(args.output, "w", encoding="utf-8", newline="\n")
@@ -137,13 +225,13 @@ def body(argv: Sequence[str] | None) -> int:
         raise DeviceError(f"cannot write {describe_os_error(error)}") from None
     ring = Ring(RING_CAPACITY)
     reader = Reader(lambda: open_port(args.port, args.baud), Lexer(protocol), ring, port=port)
-    recorder = Recorder(stream, axis, args.rate_hz, args.decimate)
+    recorder = Recorder(stream, axis, args.rate_hz, args.decimate, channels)
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())
     live = sys.stderr.isatty() and not args.quiet
     status_every_s = LIVE_INTERVAL_S if live else args.status_interval_s
-    stream.write(",".join(RUN_COLUMNS) + "\n")
+    stream.write(recorder.header())
     started_s = time.monotonic()
     next_flush_s = next_status_s = started_s + min(FLUSH_INTERVAL_S, status_every_s)
     reader.start()

@@ -24,11 +24,11 @@ from fogd.core.runio import write_csv
 from fogd.errors import FogdError, UsageError
 from fogd.simulation import profiles
 from fogd.simulation.simulator import (
+    IMU_CHANNELS,
     MAX_COIL_NODES,
     MAX_RATE_HZ,
     MIN_RATE_HZ,
     NOISE_PRESETS,
-    IMU_CHANNELS,
     SENSOR_MOUNTS,
     THERMAL_STRUCTURES,
     SimParams,

@@ -2,7 +2,9 @@
 pseudo-terminal as a gyro would, in any of fogd's wire protocols, so the real daemon can be tested end to end.
 This module owns the sample sources (`SimSource`, `RunSource`), turning samples into wire frames, seeded fault
 injection and its JSON-lines ledger, real-time pacing with backpressure, and the pty itself (`open_pty`: raw
-mode, an atomically re-pointed symlink, unplug and replug). `Emulator(...).start()` streams on a thread and
+mode, an atomically re-pointed symlink, unplug and replug). An IMU source (a simulated IMU, a multi-channel
+recorded run) streams all three gyros and, in KVH frames, the three accelerometers, in whatever output the
+protocol's options set (rate or delta, radians or degrees, g or delta velocity). `Emulator(...).start()` streams on a thread and
 returns the slave's path; `stop()` and `join()` end it, draining what the reader has not yet taken.
 """
 
@@ -28,6 +30,7 @@ from typing import Protocol as TypingProtocol
 import numpy as np
 
 from fogd import protocols
+from fogd.core.columns import ACCEL_CHANNELS, GYRO_CHANNELS, SINGLE_CHANNEL
 from fogd.core.runio import Run
 from fogd.errors import (
     ConfigError,
@@ -60,7 +63,10 @@ HEADER_BYTES = {"kvh-a": 4, "fogd": 4, "ascii": 0}  # bytes a bit flip leaves al
 
 
 class SampleSource(TypingProtocol):
-    """Rows of a run at `rate_hz`: `columns(start, stop)` gives (t_s from the first row, rate_dph, temp_c)."""
+    """Rows of a run at `rate_hz`: `columns(start, stop)` gives (t_s from the first row, rate_dph, temp_c).
+
+    A source with `imu` True has `imu_columns(start, stop)` instead: (t_s, gyro xyz deg/h, accel xyz g or None,
+    temp_c), the arrays (rows, 3); a channel the source lacks is NaN (a gyro) or the accels are None."""
 
     rate_hz: float
     rows: int
@@ -68,10 +74,13 @@ class SampleSource(TypingProtocol):
     def columns(self, start: int, stop: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
 
 
+ImuColumns = tuple[np.ndarray, np.ndarray, "np.ndarray | None", np.ndarray]
+
+
 class SimSource:
     """A live simulated chamber run (fogd.simulation.simulator), made block by block as it is streamed."""
 
-    def __init__(self, profile: Profile, rate_hz: float, seed: int, params: SimParams | None = None) -> None:
+    def __init__(self, profile: Profile, rate_hz: float, seed: int, params: SimParams | None = None, imu: bool = False) -> None:
         from fogd.simulation.simulator import (
             Simulation,  # imports scipy (most of a second): only when simulating
         )
@@ -82,10 +91,17 @@ class SimSource:
             raise ConfigError(f"simulator: {error}") from None
         self.rate_hz = self._sim.rate_hz
         self.rows = self._sim.rows
+        self.imu = imu
 
     def columns(self, start: int, stop: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         columns = self._sim.columns(start, stop)
         return columns["t_s"], columns["rate_dph"], columns["temp_c"]
+
+    def imu_columns(self, start: int, stop: int) -> ImuColumns:
+        columns = self._sim.imu_columns(start, stop)
+        gyro = np.column_stack([columns[name] for name in GYRO_CHANNELS])
+        accel = np.column_stack([columns[name] for name in ACCEL_CHANNELS])
+        return columns["t_s"], gyro, accel, columns["temp_c"]
 
 
 class RunSource:
@@ -95,10 +111,22 @@ class RunSource:
         self.run = run
         self.rate_hz = run.rate_hz
         self.rows = run.rows
+        self.imu = SINGLE_CHANNEL not in run.channels  # a multi-channel run: every channel it has
 
     def columns(self, start: int, stop: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         run = self.run
         return run.t_s[start:stop] - run.t_s[0], run.rate_dph[start:stop], run.temp_c[start:stop]
+
+    def imu_columns(self, start: int, stop: int) -> ImuColumns:
+        run = self.run
+        channels = run.channels
+
+        def stack(names: tuple[str, ...]) -> np.ndarray:
+            return np.column_stack([channels[name][start:stop] if name in channels else np.full(stop - start, np.nan)
+                                    for name in names])  # fmt: skip
+
+        accel = stack(ACCEL_CHANNELS) if any(name in channels for name in ACCEL_CHANNELS) else None
+        return run.t_s[start:stop] - run.t_s[0], stack(GYRO_CHANNELS), accel, run.temp_c[start:stop]
 
 
 @dataclass(frozen=True)
@@ -289,6 +317,8 @@ class Emulator:
     wait_reader: send nothing until a reader has opened the slave (at start and after every replug).
     drop_when_full: drop (and count) a frame the pty cannot take now instead of waiting for the reader.
     ledger: a path; one JSON line per frame (see `_ledger_line`). on_replug(path): called with each new pty.
+    protocol_options: the protocol's settings (kvh-a: rotfmt, linfmt, angle_unit, lin_unit, temp_unit); a
+    `delta` setting takes the source's rate as the unit's data rate.
     """
 
     def __init__(
@@ -307,8 +337,15 @@ class Emulator:
         wait_reader: bool = False,
         drain_timeout_s: float = 2.0,
         on_replug: Callable[[str], None] | None = None,
+        protocol_options: dict[str, object] | None = None,
     ) -> None:
-        self.protocol = protocols.get(protocol)
+        options = dict(protocol_options or {})
+        if "delta" in (options.get("rotfmt"), options.get("linfmt")):
+            options.setdefault("rate_hz", source.rate_hz)
+        self.protocol = protocols.get(protocol, **options)
+        self.imu = bool(getattr(source, "imu", False))
+        if self.imu and protocol == "ascii":
+            raise ConfigError("ascii lines carry one gyro axis: an IMU needs --protocol kvh-a (or fogd, gyros only)")
         self.faults = faults or Faults()
         if speed is not None and not (speed > 0 and math.isfinite(speed)):
             raise ConfigError(f"speed must be a positive number, not {speed!r}")
@@ -482,8 +519,9 @@ class Emulator:
         self._write(self._unsent)
         self._unsent = b""
 
-    def _samples(self) -> Iterator[tuple[int, float, float, float]]:
-        """(sample index, device time s, rate_dph, temp_c); a loop continues the device clock."""
+    def _samples(self) -> Iterator[tuple[int, float, object, float]]:
+        """(sample index, device time s, rate_dph, temp_c); a loop continues the device clock. From an IMU
+        source, rate_dph is (gyro xyz, accel xyz or None)."""
         source = self.source
         rows = source.rows
         total = self.count if self.count is not None else (None if self.loop else rows)
@@ -493,28 +531,47 @@ class Emulator:
             if loop and not self.loop:
                 return
             stop = min(row + BLOCK_ROWS, rows) if total is None else min(row + BLOCK_ROWS, rows, row + total - index)
-            t_s, rate_dph, temp_c = source.columns(row, stop)
             offset_s = loop * rows / source.rate_hz
+            if self.imu:
+                t_s, gyro, accel, temp_c = source.imu_columns(row, stop)
+                accels = [None] * t_s.size if accel is None else [tuple(values) for values in accel.tolist()]
+                for t, rates, acc, temp in zip(t_s.tolist(), gyro.tolist(), accels, temp_c.tolist()):
+                    yield index, t + offset_s, (tuple(rates), acc), temp
+                    index += 1
+                continue
+            t_s, rate_dph, temp_c = source.columns(row, stop)
             for t, rate, temp in zip(t_s.tolist(), rate_dph.tolist(), temp_c.tolist()):
                 yield index, t + offset_s, rate, temp
                 index += 1
 
-    def _frames(self, index: int, t_s: float, rate_dph: float, temp_c: float) -> list[Frame]:
-        """The wire records for one sample: the rate on z (KVH x and y read zero), and for `fogd` the
-        temperature frames that fell due since the last sample, each with its own sequence counter."""
+    def _frames(self, index: int, t_s: float, rate_dph: object, temp_c: float) -> list[Frame]:
+        """The wire records for one sample: the rate on z (KVH x and y read zero), or an IMU's three gyros (and,
+        in KVH frames, accelerometers), and for `fogd` the temperature frames that fell due since the last
+        sample, each with its own sequence counter."""
         name = self.protocol.name
-        if name == "kvh-a":
+        if self.imu:
+            gyro, accel = rate_dph  # type: ignore[misc]
+            if name == "kvh-a":
+                gyro = tuple(0.0 if value != value else value for value in gyro)  # a channel the run lacks: 0
+                if accel is not None:
+                    accel = tuple(0.0 if value != value else value for value in accel)
+                return [Frame(name, "imu", "A", index % 128, t_s, gyro, ALL_AXES, ALL_AXES, temp_c,
+                              accel_g=accel, accel_valid=ALL_AXES, accel_present=ALL_AXES)]  # fmt: skip
+            rates, present = gyro, ALL_AXES
+        elif name == "kvh-a":
             return [Frame(name, "imu", "A", index % 128, t_s, (0.0, 0.0, rate_dph), ALL_AXES, ALL_AXES, temp_c)]
-        if name == "ascii":
+        elif name == "ascii":
             return [Frame(name, "imu", "I", None, t_s, (NAN, NAN, rate_dph), Z_ONLY, Z_ONLY, temp_c)]
+        else:
+            rates, present = (NAN, NAN, rate_dph), Z_ONLY
         frames = []
         while self._temp_frames * self.source.rate_hz <= index * self.temp_rate_hz:
             frames.append(Frame(name, "temp", "temp", self._temp_frames % 65536, t_s, temp_c=temp_c))
             self._temp_frames += 1
-        frames.append(Frame(name, "rate", "rate", index % 65536, t_s, (NAN, NAN, rate_dph), Z_ONLY, Z_ONLY))
+        frames.append(Frame(name, "rate", "rate", index % 65536, t_s, rates, present, present))
         return frames
 
-    def _emissions(self, index: int, t_s: float, rate_dph: float, temp_c: float) -> list[_Emission]:
+    def _emissions(self, index: int, t_s: float, rate_dph: object, temp_c: float) -> list[_Emission]:
         faults, rng = self.faults, self._rng
         emissions = []
         for frame in self._frames(index, t_s, rate_dph, temp_c):
@@ -670,7 +727,8 @@ class Emulator:
     def _ledger_line(self, emission: _Emission) -> str:
         """One JSON object: index (frame number, from 0), sample, kind, seq, t_s (device time), faults (list),
         sent, valid (a decoder accepts the bytes as sent), rate_dph (z), rate_ok (z usable), temp_c (the values
-        the clean frame carries, as a decoder reads them; null for none or NaN), bytes, garbage_bytes."""
+        the clean frame carries, as a decoder reads them; null for none or NaN), bytes, garbage_bytes; from an
+        IMU source also rates_dph (x, y, z) and accel_g (x, y, z; null without accelerometers)."""
         carried = self.protocol.decode(emission.clean)
         valid = emission.wire is emission.clean or _decodes(self.protocol, emission.wire)
         rate_dph = carried.rate_dph[2] if carried.rate_dph is not None else None
@@ -689,6 +747,9 @@ class Emulator:
             "bytes": len(emission.wire),
             "garbage_bytes": emission.garbage_bytes,
         }
+        if self.imu:
+            line["rates_dph"] = None if carried.rate_dph is None else [_json_number(v) for v in carried.rate_dph]
+            line["accel_g"] = None if carried.accel_g is None else [_json_number(v) for v in carried.accel_g]
         self._ledger_index += 1
         return json.dumps(line)
 
