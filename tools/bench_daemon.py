@@ -28,7 +28,14 @@ py-spy was tried for (e): it samples the real daemon, but on this VM it counts t
 poll() or a lock as running (with or without --nonblocking, and --gil charges idle time to the last GIL
 holder), so its split is not a CPU breakdown; the scheduler's per-thread count is.
 
+--design ROUNDS answers one design question instead (issue 13: should the loop read the port itself, one
+poll loop and no reader thread, as gpsd does?): the relay, fogd as it is and tools/bench_loop_prototype.py (one
+thread: poll, read, fogd's Lexer, Daemon.compensate, Formatter, a non-blocking write) over the same ptys, each
+round in one run; --design-stages adds the prototype cut after poll, lexing and compensation (each stage's
+cost in situ, cold caches included, which the in-process (e) misses); --design-rates adds rate steps.
+
 Usage: python tools/bench_daemon.py [--quick] [--strict]
+       python tools/bench_daemon.py --design ROUNDS [--design-stages] [--design-rates HZ ...] [--quick]
 """
 
 from __future__ import annotations
@@ -57,6 +64,7 @@ SEQ_OFFSET = 29
 TICK_S = 0.001
 DEMO_MODEL = Path(__file__).resolve().parent.parent / "fogd" / "data" / "demo-model.json"
 RELAY = Path(__file__).resolve().parent / "bench_relay.py"
+PROTOTYPE = Path(__file__).resolve().parent / "bench_loop_prototype.py"
 CPU_RATES = (200.0, 1000.0, 5000.0)
 # issue 13's targets, one compensated axis (three-axis compensation, issue 12, is not built yet)
 TARGET_RATE = 50_000
@@ -341,6 +349,45 @@ def threads_command(port: str, out: str) -> list[str]:
     return [sys.executable, str(RELAY), "--threads", port, out]
 
 
+def prototype_command(model: str, upto: str = "encode"):
+    def command(port: str, out: str) -> list[str]:
+        return [sys.executable, str(PROTOTYPE), "--upto", upto, model, port, out]
+    return command
+
+
+def design(model: str, rates: list[float], step_s: float, latency_s: float, cpu_s: float, rounds: int,
+           stages: bool) -> int:
+    """--design: the relay, fogd as it is and a minimal single-thread fogd (tools/bench_loop_prototype.py) in one
+    run, `rounds` times: CPU at 200/1,000/5,000 frames/s, p50/p99 at 1,000/s, loss at 5,000/s, ratios; with
+    `stages`, the prototype cut after each stage too (what each stage costs in situ)."""
+    labels = {"relay": relay_command, "fogd": fogd_command(model), "single-thread prototype": prototype_command(model)}
+    if stages:
+        for upto in ("poll", "lex", "compensate"):
+            labels[f"prototype up to {upto}"] = prototype_command(model, upto)
+    rows, ratio_rows = [], []
+    for round_ in range(1, rounds + 1):
+        results = {label: measure(label, command, rates, step_s, latency_s, cpu_s) for label, command in labels.items()}
+        for label, r in results.items():
+            lat = r["latency"].latencies_s
+            r["p50"], r["p99"] = percentile_us(lat, 50), percentile_us(lat, 99)
+            r["share"] = {hz: r["cpu"][hz].cpu_s / r["cpu"][hz].elapsed_s for hz in CPU_RATES}
+            clean = [s.asked_hz for s in r["steps"] if s.loss == 0 and s.bad_headers == 0 and s.achieved_hz >= 0.95 * s.asked_hz]
+            rows.append([round_, label, *(f"{100 * r['share'][hz]:.1f}%" for hz in CPU_RATES), f"{r['p50']:.0f}",
+                         f"{r['p99']:.0f}", f"{r['cpu'][5000.0].loss}", f"{max(clean, default=0):,.0f}" if rates else "-",
+                         f"{r['rss_mb']:.1f}"])  # fmt: skip
+        relay = results["relay"]
+        for label in (label for label in labels if label != "relay"):
+            r = results[label]
+            ratio_rows.append([round_, label, *(f"{r['share'][hz] / relay['share'][hz]:.1f}x" for hz in CPU_RATES),
+                               f"{r['p50'] / relay['p50']:.1f}x", f"{r['p99'] / relay['p99']:.1f}x"])  # fmt: skip
+    print_table("Design question: fogd (reader thread + loop) vs a single-thread loop reading the port itself, "
+                "same ptys, same run", ["round", "process", *(f"CPU at {hz:,.0f}/s" for hz in CPU_RATES), "p50 us at 1k",
+                                        "p99 us at 1k", "lost at 5k", "max zero-loss/s", "peak RSS MB"], rows)  # fmt: skip
+    print_table("Against the relay of the same round", ["round", "process", *(f"CPU at {hz:,.0f}/s" for hz in CPU_RATES),
+                                                        "p50", "p99"], ratio_rows)  # fmt: skip
+    return 0
+
+
 def measure(label: str, command, rates: list[float], step_s: float, latency_s: float, cpu_s: float) -> dict:
     harness = Harness(label, command)
     try:
@@ -450,7 +497,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--switch-interval-s", type=float, default=None,
                         help="also run fogd with sys.setswitchinterval(S) (an experiment; Python's default is 0.005)")
     parser.add_argument("--model", default=str(DEMO_MODEL), help="model file for fogd (default: the bundled demo model)")
+    parser.add_argument("--design", type=int, metavar="ROUNDS", default=0,
+                        help="only the design comparison: relay, fogd, a single-thread prototype, ROUNDS times")
+    parser.add_argument("--design-stages", action="store_true",
+                        help="with --design: also the prototype cut after each stage (poll, lex, compensate)")
+    parser.add_argument("--design-rates", type=float, nargs="*", default=[],
+                        help="with --design: also step through these rates for the max zero-loss rate")
     args = parser.parse_args(argv)
+    if args.design:
+        print(machine())
+        quick = 0.5 if args.quick else None
+        return design(args.model, args.design_rates, quick or 3.0, quick or 5.0, quick or 5.0, args.design,
+                      args.design_stages)
     if args.quick:
         rates, step_s, latency_s, cpu_s = [2000.0, 5000.0], 0.5, 0.5, 0.5
     else:
