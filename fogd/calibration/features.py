@@ -3,10 +3,16 @@
 Inputs come from the very code the daemon runs (temperature hold, eq. 16 estimator) in its batch form;
 targets are block means of the rate (100 s by default, as in the paper) minus a reference. Blocks start after
 each run's warm-up and never straddle two runs.
+
+The channels of one IMU run share its temperature, hence its inputs: `run_inputs` computes them once and
+`shared_inputs` hands them to every channel's training (fogd.calibration.channels), so that six channels
+do not filter the same temperature six times.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -34,6 +40,42 @@ class TrainingSet:
     true_error_dph: np.ndarray | None = None  # block means of the simulator's truth, when every run has it
     runs: list[dict] = field(default_factory=list)
     x_samples: np.ndarray | None = None  # evenly strided warm sample rows (inputs as served, not block means)
+
+
+Inputs = dict[tuple[InputSpec, ...], np.ndarray]  # an input set -> its (rows from the first valid temperature, inputs)
+_SHARED: dict[int, tuple[np.ndarray, Inputs]] = {}  # id(temp_c) -> (that temp_c, its inputs by input set)
+
+
+def run_inputs(run: Run, sets: list[tuple[InputSpec, ...]]) -> Inputs:
+    """The run's inputs for each input set, from its first valid temperature on (the temperature held over
+    invalid readings), as training uses them."""
+    temp_ok = temperature_valid(run.temp_c)
+    if not temp_ok.any():
+        raise InputError(f"{run.path}: no valid temperature in the whole run")
+    first = int(np.argmax(temp_ok))
+    temp_c = hold_temperature(run.temp_c[first:], temp_ok[first:])
+    return {specs: inputs_batch(temp_c, specs, run.rate_hz) for specs in dict.fromkeys(sets)}
+
+
+@contextmanager
+def shared_inputs(runs: list[Run], inputs: list[Inputs]) -> Iterator[None]:
+    """Within the block, `training_set` takes each run's inputs from `inputs` (`run_inputs` of the same
+    temperatures) instead of computing them again: a run is known by its very temp_c array, which every
+    channel view of an IMU run (Run.channel) shares."""
+    keys = [id(run.temp_c) for run in runs]
+    _SHARED.update({key: (run.temp_c, given) for key, run, given in zip(keys, runs, inputs)})
+    try:
+        yield
+    finally:
+        for key in keys:
+            _SHARED.pop(key, None)
+
+
+def _inputs(run: Run, temp_c: np.ndarray, specs: tuple[InputSpec, ...]) -> np.ndarray:
+    shared = _SHARED.get(id(run.temp_c))
+    if shared is not None and shared[0] is run.temp_c and specs in shared[1]:
+        return shared[1][specs]
+    return inputs_batch(temp_c, specs, run.rate_hz)
 
 
 def training_set(runs: list[Run], specs: tuple[InputSpec, ...], block_s: float, min_warmup_s: float = 0.0) -> TrainingSet:
@@ -70,7 +112,7 @@ def _run_blocks(run: Run, index: int, specs: tuple[InputSpec, ...], block_s: flo
             f"{run.path}: {run.rows} rows at {run.rate_hz:.6g} Hz is too short: the estimator window needs "
             f"{warmup + 1} rows and one {block_s:g} s block {block_n} more"
         )
-    x = inputs_batch(temp_c, specs, run.rate_hz)[warmup:]
+    x = _inputs(run, temp_c, specs)[warmup:]
     rate = run.rate_dph[first + warmup :]
     use = temp_ok[first + warmup :] & np.isfinite(rate)
     x_blocks, kept = block_means(x, use, block_n)

@@ -1,13 +1,16 @@
 """Replay: a recorded run through the daemon's compensator, and the paper's table 4 for it on the run's one
-block grid (the same blocks for every model compared on the run)."""
+block grid (the same blocks for every model compared on the run). An IMU run's channels go through the
+channel compensator (`replay_channels`), each then tabled as a single-channel run (Run.channel)."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 
 import numpy as np
 
 from fogd.calibration.allan import AllanResult, analyse
+from fogd.core.channels import ChannelCompensator
 from fogd.core.columns import TRUE_ERROR_COLUMN, block_samples
 from fogd.core.compensator import Compensated, Compensator
 from fogd.core.errorstats import ErrorStats, block_means, detrended_stats
@@ -32,6 +35,30 @@ def replay(model: FrozenModel, run: Run, *, chunk_rows: int = CHUNK_ROWS) -> Com
         for start in range(0, run.rows, chunk_rows)
     ]
     return Compensated(*(np.concatenate([getattr(part, name) for part in parts]) for name in (f.name for f in fields(Compensated))))
+
+
+def replay_channels(models: Mapping[str, FrozenModel], run: Run, *, chunk_rows: int = CHUNK_ROWS) -> dict[str, Compensated]:
+    """Compensate every channel of `models` in a whole IMU run, chunk by chunk, with the channel compensator."""
+    missing = [channel for channel in models if channel not in run.channels]
+    if missing:
+        raise InputError(f"{run.path}: the model compensates {', '.join(models)}; the run has no {', '.join(missing)} "
+                         f"(it has {', '.join(run.channels)})")  # fmt: skip
+    compensator = ChannelCompensator(models, run.rate_hz)
+    if run.rows <= compensator.warmup:
+        raise InputError(
+            f"{run.path}: {run.rows} rows at {run.rate_hz:.6g} Hz is shorter than the model's estimator window "
+            f"({compensator.warmup + 1} rows)"
+        )
+    parts = [
+        compensator.process({channel: run.channels[channel][start : start + chunk_rows] for channel in models},
+                            run.temp_c[start : start + chunk_rows])
+        for start in range(0, run.rows, chunk_rows)
+    ]  # fmt: skip
+    names = [f.name for f in fields(Compensated)]
+    return {
+        channel: Compensated(*(np.concatenate([getattr(part[channel], name) for part in parts]) for name in names))
+        for channel in models
+    }
 
 
 SETTLE_S = 600.0  # thermal settling at the start of a run that an accuracy comparison skips

@@ -5,9 +5,10 @@ from __future__ import annotations
 from fogd.core.errorstats import ErrorStats
 
 
-def error_table(rows: list[tuple[str, ErrorStats]], *, markdown: bool = False) -> str:
-    """A table of RMSE and maximum error in deg/h, one row per scheme, like the paper's tables 3 and 4."""
-    header = ("Scheme", "RMSE (deg/h)", "Max error (deg/h)")
+def error_table(rows: list[tuple[str, ErrorStats]], *, markdown: bool = False, unit: str = "deg/h") -> str:
+    """A table of RMSE and maximum error (in deg/h, or the channel's `unit`: g for an accelerometer), one row
+    per scheme, like the paper's tables 3 and 4."""
+    header = ("Scheme", f"RMSE ({unit})", f"Max error ({unit})")
     body = [(name, f"{stats.rmse_dph:.3e}", f"{stats.max_dph:.3e}") for name, stats in rows]
     if markdown:
         lines = ["| " + " | ".join(header) + " |", "|---|---:|---:|"]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import os
 import sys
 from typing import Sequence
@@ -9,22 +10,25 @@ from typing import Sequence
 import numpy as np
 
 from fogd.calibration.allan import plot, summary_lines
+from fogd.calibration.channels import channel_unit
 from fogd.calibration.replay import (
     SETTLE_S,
     ReplayTable,
     allan_curves,
     replay,
+    replay_channels,
     replay_table,
 )
 from fogd.calibration.tables import error_table
 from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, run
 from fogd.core import modelfile
 from fogd.core.atomic import refuse_inputs
-from fogd.core.columns import BLOCK_S, OUTPUT_FORMATS
+from fogd.core.channels import ChannelModels, output_columns
+from fogd.core.columns import BLOCK_S, OUTPUT_FORMATS, SINGLE_CHANNEL
 from fogd.core.flags import Flag
 from fogd.core.numbers import non_negative_float, positive_float
-from fogd.core.runio import read_run, write_csv
-from fogd.errors import ModelFileError, NoModelFileError, UsageError
+from fogd.core.runio import Run, read_run, write_csv
+from fogd.errors import InputError, ModelFileError, NoModelFileError, UsageError
 
 PROG = "fogd-replay"
 
@@ -34,7 +38,10 @@ def parser() -> ArgumentParser:
         prog=PROG,
         description="Compensate a recorded run (CSV t_s,rate_dph,temp_c) with a fogd model, exactly as the "
         "daemon would, and write t_s,rate_dph,temp_c,temp_rate_cps,comp_dph,rate_comp_dph,flags: one row per "
-        "input row, in order. Prints the paper's table 4 (block-mean error before and after).",
+        "input row, in order. Prints the paper's table 4 (block-mean error before and after). An IMU run with a "
+        "multi-channel model: t_s,temp_c and each channel, followed for each channel the model covers by "
+        "comp_<channel>, its compensated reading (rate_x_comp_dph, accel_z_comp_g) and flags_<channel>; table 4 "
+        "per channel; --allan-plot writes one figure per channel (NAME-<channel>.png).",
         epilog=f"flags bits: {', '.join(f'{flag.name}={int(flag)}' for flag in Flag)}",
         formatter_class=DefaultsHelpFormatter,
     )
@@ -62,8 +69,11 @@ def body(argv: Sequence[str] | None) -> int:
     for output in (args.output, args.allan_plot):
         if output and output != "-":
             refuse_inputs(output, [args.model, args.run])
-    model = load_model(args.model, args.run)
+    models = load_model(args.model, args.run)
     recorded = read_run(args.run)
+    if models.version == modelfile.CHANNELS_VERSION:
+        return _replay_channels(args, models, recorded)
+    model = models[SINGLE_CHANNEL]
     result = replay(model, recorded)
     if args.output:
         write_csv(
@@ -104,11 +114,59 @@ def body(argv: Sequence[str] | None) -> int:
     return 0
 
 
-def load_model(path: str, run_path: str):
-    """The model; when it will not load and the arguments look swapped (a CSV first, a .json second), the
-    one-line error says so and gives the usage."""
+def _replay_channels(args: argparse.Namespace, models: ChannelModels, recorded: Run) -> int:
+    """An IMU run with a multi-channel model: every channel the model covers compensated, the others passed
+    through (and said so); table 4 of each compensated channel."""
+    if tuple(recorded.channels) == (SINGLE_CHANNEL,):
+        raise InputError(f"{args.model} compensates the channels {', '.join(models)} of an IMU; {args.run} is a "
+                         "single-axis run (t_s,rate_dph,temp_c): replay it with a single-axis model")  # fmt: skip
+    covered, passed = models.split(recorded.channels)
+    results = replay_channels({channel: models[channel] for channel in models}, recorded)
+    if args.output:
+        columns: dict[str, np.ndarray] = {"t_s": recorded.t_s, "temp_c": recorded.temp_c + 0.0}
+        formats = {"t_s": OUTPUT_FORMATS["t_s"], "temp_c": OUTPUT_FORMATS["temp_c"]}
+        for channel, values in recorded.channels.items():
+            columns[channel] = values + 0.0
+            if channel in results:
+                comp, compensated, flags = output_columns(channel)
+                columns[comp] = np.asarray(results[channel].comp_dph) + 0.0
+                columns[compensated] = np.asarray(results[channel].rate_comp_dph) + 0.0
+                columns[flags] = results[channel].flags
+                formats[flags] = OUTPUT_FORMATS["flags"]
+        write_csv(args.output, columns, formats, inputs=[args.model, args.run])
+    report = sys.stderr if args.output == "-" else sys.stdout
+    print(f"{recorded.name} with {models.name}: compensated {', '.join(covered)}", file=report)
+    if passed:
+        print(f"passed through unchanged (no model for them in the file): {', '.join(passed)}", file=report)
+    for channel in covered:
+        model, result, view = models[channel], results[channel], recorded.channel(channel)
+        table = replay_table(view, result, args.block_s, settle_s=args.settle_s)
+        print(f"\nTable 4: {recorded.name}, {channel} with {model.name} ({model.method}), {table.blocks} blocks of "
+              f"{args.block_s:g} s {_settling(table, args.settle_s)}", file=report)  # fmt: skip
+        rows = [("Before compensation", table.before), (model.method, table.after)]
+        if table.best is not None:
+            rows.append(("Best possible (true error removed)", table.best))
+        print(error_table(rows, unit=channel_unit(channel)), file=report)
+        print(_domain_shares(table, model.meta.get("domain_guard") is not None), file=report)
+        print(_flag_counts(result.flags), file=report)
+        if not args.no_allan or args.allan_plot:
+            curves = allan_curves(view, result)
+            for line in summary_lines(curves):
+                print(line, file=report)
+            if args.allan_plot:
+                stem, suffix = os.path.splitext(args.allan_plot)
+                path = f"{stem}-{channel}{suffix or '.png'}"
+                plot(path, curves, f"{recorded.name}, {channel}: overlapping Allan deviation ({model.method})")
+                print(f"wrote {path}", file=sys.stderr)
+    return 0
+
+
+def load_model(path: str, run_path: str) -> ChannelModels:
+    """The model file's models by channel (a single-channel file: the one channel rate_dph); when it will not
+    load and the arguments look swapped (a CSV first, a .json second), the one-line error says so and gives
+    the usage."""
     try:
-        return modelfile.load(path)
+        return modelfile.load_channels(path)
     except ModelFileError as error:
         if isinstance(error, NoModelFileError) or not run_path.lower().endswith(".json"):
             raise

@@ -4,29 +4,35 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 from typing import Sequence
 
+import yaml
+
+from fogd.calibration.channels import (
+    ChannelFit,
+    ChannelJob,
+    Settings,
+    channel_jobs,
+    fit_channels,
+    unit_document,
+)
 from fogd.calibration.models import FITNESSES, METHODS, FitOptions
-from fogd.calibration.models.folds import MIN_RUNS_LEFT_OUT, drift_rmse
 from fogd.calibration.models.least_squares import POLY_TERMS
 from fogd.calibration.models.svr import TRENDS
-from fogd.calibration.replay import replay, replay_table
 from fogd.calibration.runcheck import check_calibration_run
 from fogd.calibration.selection import (
     AUTO_ITERATIONS,
     AUTO_PARTICLES,
     DEFAULT_INPUT_SETS,
     input_sets,
-    select,
-    stderr_log,
-    table_lines,
 )
-from fogd.calibration.tables import error_table
-from fogd.calibration.training import TrainConfig, Trained, prepare, train
+from fogd.calibration.training import TrainConfig
+from fogd.calibration.units import Unit, units_from_manifest
 from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, run
 from fogd.core import modelfile
-from fogd.core.atomic import refuse_inputs
-from fogd.core.columns import BLOCK_S
+from fogd.core.atomic import read_regular, refuse_inputs
+from fogd.core.columns import BLOCK_S, CHANNELS
 from fogd.core.estimator import EstimatorSettings
 from fogd.core.inputs import (
     DEFAULT_INPUTS_TEXT,
@@ -37,7 +43,13 @@ from fogd.core.inputs import (
 )
 from fogd.core.numbers import non_negative_float, positive_float, positive_int
 from fogd.core.runio import read_run
-from fogd.errors import InputError, UsageError
+from fogd.errors import (
+    FogdError,
+    InputError,
+    NoInputError,
+    UsageError,
+    describe_os_error,
+)
 
 PROG = "fogd-train"
 
@@ -46,12 +58,25 @@ def parser() -> ArgumentParser:
     p = ArgumentParser(
         prog=PROG,
         description="Fit a FOG temperature-error model f(T, dT/dt) from thermal-chamber runs "
-        "(CSV t_s,rate_dph,temp_c) and write it as a JSON model file for fogd and fogd-replay.",
-        epilog="Example: fogd-train cal_heat.csv cal_cool.csv -o model.json --report report/",
+        "(CSV t_s,rate_dph,temp_c) and write it as a JSON model file for fogd and fogd-replay. Runs of an IMU "
+        f"(t_s, any of {','.join(CHANNELS)}, temp_c) give a model per channel, fitted in parallel (--jobs), in "
+        "one model file.",
+        epilog="Examples: fogd-train cal_heat.csv cal_cool.csv -o model.json --report report/; "
+        "fogd-train --manifest units.yaml --jobs 4 (a production line: units: [{name, runs, channels?, holdout?, "
+        "out?}, ...], one model file per unit)",
         formatter_class=DefaultsHelpFormatter,
     )
-    p.add_argument("runs", nargs="+", metavar="RUN.csv", help="calibration runs; blocks never straddle two runs")
-    p.add_argument("-o", "--output", metavar="MODEL.json", help="model file to write (required unless --compare)")
+    p.add_argument("runs", nargs="*", metavar="RUN.csv", help="calibration runs; blocks never straddle two runs")
+    p.add_argument("-o", "--output", metavar="MODEL.json",
+                   help="model file to write (required unless --compare); with --manifest, the directory for the "
+                   "units' <name>.json (default: beside the manifest)")  # fmt: skip
+    p.add_argument("--channels", metavar="LIST",
+                   help="IMU runs: the channels to fit, comma-separated (default: every channel the runs have; "
+                   "the others are passed through by fogd-replay and fogd)")  # fmt: skip
+    p.add_argument("--manifest", metavar="UNITS.yaml",
+                   help="train every unit of a manifest, each into its own model file, in parallel (--jobs): "
+                   "units: a list of {name, runs, channels (optional), holdout (optional), out (optional)}, "
+                   "paths relative to the manifest")  # fmt: skip
     p.add_argument(
         "--method", choices=(*METHODS, "auto"), default="pso-svr",
         help="model family; auto: choose the family and the input set by nested held-out error (leave-one-run-out, "
@@ -99,7 +124,9 @@ def parser() -> ArgumentParser:
     p.add_argument("--c1", type=non_negative_float, default=2.0, help="PSO cognitive learning factor")
     p.add_argument("--c2", type=non_negative_float, default=2.0, help="PSO social learning factor")
     p.add_argument("--folds", type=positive_int, default=5, help="blocked time folds for cv with a single run")
-    p.add_argument("--jobs", type=int, default=1, help="joblib workers evaluating particles (-1: all cores)")
+    p.add_argument("--jobs", type=int, default=1,
+                   help="joblib workers (-1: all cores): one per channel or unit when there are several (the active "
+                   "joblib backend, e.g. Dask), else evaluating one swarm's particles")  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="random seed (PSO, k-means)")
     p.add_argument("--degree", type=positive_int, default=5, help="ls-poly order (paper: 5)")
     p.add_argument(
@@ -124,21 +151,12 @@ def parser() -> ArgumentParser:
     return p
 
 
-def _reference(text: str) -> str | float:
-    if text == "mean":
-        return "mean"
-    try:
-        return float(text)
-    except ValueError:
-        raise UsageError(f"--reference must be 'mean' or a rate in deg/h, not {text!r}") from None
-
-
 def body(argv: Sequence[str] | None) -> int:
     args = parser().parse_args(argv)
-    if not args.output and not args.compare:
-        raise UsageError(f"give -o MODEL.json (or --compare to only compare methods) (see {PROG} --help)")
-    if args.output:
-        refuse_inputs(args.output, [*args.runs, *args.holdout])  # before minutes of fitting, not after
+    units = _units(args)
+    for unit in units:
+        if unit.out:
+            refuse_inputs(unit.out, [*unit.runs, *unit.holdout])  # before minutes of fitting, not after
     auto = args.method == "auto"
     try:
         estimator = EstimatorSettings(args.window_s, args.average_s, args.step_s)
@@ -147,8 +165,8 @@ def body(argv: Sequence[str] | None) -> int:
         else:
             inputs = parse_inputs(args.inputs or DEFAULT_INPUTS_TEXT, estimator.average_s, estimator.step_s)
         sets = input_sets(args.auto_inputs, args.average_s, args.step_s) if auto else [inputs]
-        runs = [read_run(path) for path in args.runs]
-        for loaded in runs:
+        unit_runs = [[read_run(path) for path in unit.runs] for unit in units]
+        for loaded in (each for runs in unit_runs for each in runs):
             estimator.samples(loaded.rate_hz)  # --window-s and --average-s, checked even when --inputs has no rate
             for specs in sets:
                 for spec in specs:
@@ -160,12 +178,11 @@ def body(argv: Sequence[str] | None) -> int:
         raise UsageError("--auto-inputs goes with --method auto")
     if auto and args.compare:
         raise UsageError("--compare fits every method on one input set; --method auto already compares them all")
-    for loaded in runs:
+    for loaded in (each for runs in unit_runs for each in runs):
         warmup_s = max(warmup_samples(specs, loaded.rate_hz) for specs in sets) / loaded.rate_hz
         check_calibration_run(loaded, warmup_s, args.block_s)
     particles = args.particles or (AUTO_PARTICLES if auto else 60)
     iterations = args.iterations or (AUTO_ITERATIONS if auto else 100)
-    holdouts = [read_run(path) for path in args.holdout]
     config = TrainConfig(
         method=args.method,
         inputs=inputs,
@@ -178,101 +195,126 @@ def body(argv: Sequence[str] | None) -> int:
         ),  # fmt: skip
         name=args.name,
     )
-    selection: list[str] | None = None
-    if auto:
-        best, candidates = select(runs, config, sets, log=None if args.quiet else stderr_log)
-        label = f"auto: {best.label}"
-        trained: dict[str, Trained] = {label: best.trained}
-        chosen = best.trained
-        folds = "leave-one-run-out" if len(runs) >= MIN_RUNS_LEFT_OUT else f"{args.folds} blocked time folds of every run"
-        chosen.document["training"]["selection"] = {
-            "folds": folds,
-            "chosen": best.row(),
-            "candidates": [candidate.row() for candidate in candidates],
-        }
-        selection = table_lines(candidates, best, markdown=True)
-        print(f"\nModel selection (--method auto): nested held-out RMSE of each candidate, {folds}")
-        print("\n".join(table_lines(candidates, best)))
-        print(f"chosen: {best.label} (nested held-out RMSE {best.held_out_rmse_dph:.3e} deg/h)")
-        held_out_dph = best.held_out_rmse_dph
-    else:
-        prepared = prepare(runs, config)
-        methods = list(METHODS) if args.compare else [args.method]
-        trained = {}
-        for method in methods:
-            config.method = method
-            try:
-                trained[method] = train(runs, config, prepared)
-            except InputError as error:  # --compare: a family these runs cannot fit is skipped, and said so
-                if method == args.method:
-                    raise
-                print(f"{PROG}: --compare: {method} skipped: {error}", file=sys.stderr)
-        label = args.method
-        chosen = trained[args.method]
-        held_out_dph = chosen.fitted.cv_rmse_dph
-    for line in _summary(chosen):
-        print(line, file=sys.stderr)
-    for method, fitted in ((m, t.fitted) for m, t in trained.items()):
-        if fitted.unconverged_fits:
-            print(f"{method}: {fitted.unconverged_fits} of scikit-learn's fits stopped at their iteration limit "
-                  "(scored by held-out error like every other fit)", file=sys.stderr)
-    print(f"\nTable 3: fit on the training runs ({len(chosen.error_dph)} blocks of {args.block_s:g} s, about each run's mean)")
-    rows = [("Before compensation", chosen.before)] + [(m, t.after) for m, t in trained.items()]
-    print(error_table(rows))
-    for holdout in holdouts:
-        print(f"\nTable 4: {holdout.name}, not used for training (block means about the run mean)")
-        print(error_table(_holdout_rows(trained, holdout, args.block_s)))
-    if args.output:
-        _never_worse_than_nothing(chosen, held_out_dph, args.force)
-        modelfile.save(args.output, chosen.document, inputs=[*args.runs, *args.holdout])
-        print(f"\nwrote {args.output} ({label}, {chosen.model.name})", file=sys.stderr)
+    settings = Settings(config, sets, auto=auto, compare=args.compare, log=not args.quiet)
+    jobs = [channel_jobs(unit.name if args.manifest else "", runs, [read_run(path) for path in unit.holdout],
+                         unit.channels, settings)
+            for unit, runs in zip(units, unit_runs)]  # fmt: skip
+    fits = fit_channels([job for unit_jobs in jobs for job in unit_jobs], settings, args.jobs)
+    failed: list[str] = []
+    for unit, unit_jobs in zip(units, jobs):
+        unit_fits, fits = fits[: len(unit_jobs)], fits[len(unit_jobs) :]
+        try:
+            _finish(args, unit, unit_jobs, unit_fits)
+        except FogdError as error:
+            if not args.manifest:
+                raise
+            print(f"{PROG}: unit {unit.name}: {error}", file=sys.stderr)
+            failed.append(unit.name)
+    if failed:
+        raise InputError(f"{len(failed)} of {len(units)} units have no model file: {', '.join(failed)} (see above)")
+    return 0
+
+
+def _finish(args: argparse.Namespace, unit: Unit, jobs: list[ChannelJob], fits: list[ChannelFit]) -> None:
+    """Print a unit's fits, refuse what cannot be written, write its model file and report."""
+    for fit in fits:
+        fit.transcript.replay()
+    for fit in fits:
+        where = f"{fit.channel}: " if fit.channel else ""
+        if fit.error is not None:
+            raise type(fit.error)(f"{where}{fit.error}")
+        if fit.worse and args.force:
+            print(f"{PROG}: warning: {where}{fit.worse}; written anyway (--force)", file=sys.stderr)
+        elif fit.worse:
+            leave_out = "leave the channel out (--channels), " if fit.channel else ""
+            raise InputError(f"{where}{fit.worse}; record more or longer runs over the range in use, {leave_out}"
+                             "try --method auto, or --force to write it anyway")  # fmt: skip
+    if unit.out:
+        document = unit_document(args.name or (unit.name if args.manifest else None), fits)
+        modelfile.save(unit.out, document, inputs=[*unit.runs, *unit.holdout])
+        if len(fits) == 1 and fits[0].channel is None:
+            print(f"\nwrote {unit.out} ({fits[0].label}, {fits[0].chosen.model.name})", file=sys.stderr)
+        else:
+            print(f"\nwrote {unit.out} ({len(fits)} channels: {', '.join(fit.channel for fit in fits)})", file=sys.stderr)
     if args.report:
         from fogd.calibration.report import (
             write_report,  # matplotlib only when a report is asked for
         )
 
-        path = write_report(args.report, trained, label, holdouts, args.block_s, selection=selection, allan=True)
-        print(f"wrote report {path}", file=sys.stderr)
-    return 0
+        for job, fit in zip(jobs, fits):
+            directory = Path(args.report, *(part for part in (job.unit, job.channel) if part))
+            path = write_report(str(directory), fit.trained, fit.label, job.holdouts, args.block_s,
+                                selection=fit.selection, allan=True)  # fmt: skip
+            print(f"wrote report {path}", file=sys.stderr)
 
 
-def uncompensated_drift_dph(trained: Trained) -> float:
-    """The calibration blocks' drift with no compensation, about each run's mean (as the held-out figure)."""
-    return drift_rmse(trained.error_dph, trained.data.groups)
+def _units(args: argparse.Namespace) -> list[Unit]:
+    """The units to train: the manifest's, or the one the command line describes."""
+    channels = _channel_list(args.channels)
+    if args.manifest:
+        if args.runs or args.holdout or args.name:
+            raise UsageError("--manifest gives every unit's runs, holdout runs and name; give no RUN.csv, --holdout or --name")
+        if args.output and not Path(args.output).is_dir():
+            raise UsageError(f"-o {args.output}: with --manifest, -o is the directory for the units' <name>.json")
+        units = units_from_manifest(_read_manifest(args.manifest), args.manifest, args.output)
+        for unit in units:
+            unit.channels = unit.channels or channels
+        return units
+    if not args.runs:
+        raise UsageError(f"give the calibration runs (RUN.csv ...) or --manifest UNITS.yaml (see {PROG} --help)")
+    if not args.output and not args.compare:
+        raise UsageError(f"give -o MODEL.json (or --compare to only compare methods) (see {PROG} --help)")
+    return [Unit("", list(args.runs), args.output, channels, list(args.holdout))]
 
 
-def _never_worse_than_nothing(trained: Trained, held_out_dph: float | None, force: bool) -> None:
-    """Refuse (InputError, one line) a model whose held-out drift exceeds the drift it is meant to remove."""
-    uncompensated_dph = uncompensated_drift_dph(trained)
-    if held_out_dph is None or held_out_dph <= uncompensated_dph:
-        return
-    message = (f"the model's held-out drift ({held_out_dph:.3e} deg/h) exceeds the uncompensated drift "
-               f"({uncompensated_dph:.3e} deg/h): it would make the gyro worse")  # fmt: skip
-    if force:
-        print(f"{PROG}: warning: {message}; written anyway (--force)", file=sys.stderr)
-        return
-    raise InputError(f"{message}; record more or longer runs over the range in use, try --method auto, or "
-                     "--force to write it anyway")
+def _channel_list(text: str | None) -> list[str] | None:
+    if text is None:
+        return None
+    names = [name.strip() for name in text.split(",") if name.strip()]
+    bad = [name for name in names if name not in CHANNELS]
+    if bad or not names:
+        raise UsageError(f"--channels {text!r}: channels are {', '.join(CHANNELS)} (comma-separated)")
+    return names
 
 
-def _summary(trained: Trained) -> list[str]:
-    hyper = dict(trained.fitted.hyperparameters)
-    if "epsilon_dph" in hyper:  # the tube in deg/h says what the scaled epsilon says; one of them is enough
-        hyper.pop("epsilon", None)
-    lines = [f"{trained.fitted.method}: " + ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in hyper.items())]
-    if trained.fitted.cv_rmse_dph is not None:
-        lines.append(f"held-out (cv) drift RMSE: {trained.fitted.cv_rmse_dph:.3e} deg/h (about each run's mean), "
-                     f"uncompensated {uncompensated_drift_dph(trained):.3e} deg/h")
-    return lines
+MAX_MANIFEST_BYTES = 1 << 20
 
 
-def _holdout_rows(trained: dict[str, Trained], holdout, block_s: float) -> list:
-    tables = {method: replay_table(holdout, replay(t.model, holdout), block_s) for method, t in trained.items()}
-    first = next(iter(tables.values()))
-    rows = [("Before compensation", first.before)] + [(method, table.after) for method, table in tables.items()]
-    if first.best is not None:
-        rows.append(("Best possible (true error removed)", first.best))
-    return rows
+def _read_manifest(path: str) -> object:
+    """The manifest's YAML (a mapping, a key given twice refused), or a one-line InputError."""
+    try:
+        data = read_regular(path, MAX_MANIFEST_BYTES)
+    except OSError as error:
+        raise NoInputError(f"cannot read manifest: {describe_os_error(error)}") from None
+    if len(data) > MAX_MANIFEST_BYTES:
+        raise InputError(f"{path}: larger than {MAX_MANIFEST_BYTES // 1024} KiB; not a manifest")
+    try:
+        return yaml.load(data, Loader=_ManifestLoader)  # a SafeLoader
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        line = f":{mark.line + 1}" if mark is not None else ""
+        problem = getattr(error, "problem", None) or str(error).splitlines()[0]
+        raise InputError(f"{path}{line}: not a YAML manifest ({problem})") from None
+
+
+class _ManifestLoader(yaml.SafeLoader):
+    """YAML's safe loader refusing a key given twice (it would keep the last silently)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
+        keys = [self.construct_object(key, deep=True) for key, _ in node.value]
+        twice = next((key for i, key in enumerate(keys) if key in keys[:i]), None)
+        if twice is not None:
+            raise yaml.constructor.ConstructorError(None, None, f"key {str(twice)[:40]!r} given twice", node.start_mark)
+        return super().construct_mapping(node, deep=deep)
+
+
+def _reference(text: str) -> str | float:
+    if text == "mean":
+        return "mean"
+    try:
+        return float(text)
+    except ValueError:
+        raise UsageError(f"--reference must be 'mean' or a rate in deg/h, not {text!r}") from None
 
 
 def main(argv: Sequence[str] | None = None) -> int:

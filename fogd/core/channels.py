@@ -206,3 +206,11 @@ class ChannelCompensator:
             return rates[channel]
         except KeyError:
             raise ValueError(f"no samples for channel {channel!r}, which the model compensates") from None
+
+
+def output_columns(channel: str) -> tuple[str, str, str]:
+    """A compensated channel's columns in a multi-channel output CSV, beside the channel's own reading:
+    its compensation, its compensated reading and its flags (rate_x_dph: comp_rate_x_dph, rate_x_comp_dph,
+    flags_rate_x_dph; accel_z_g: comp_accel_z_g, accel_z_comp_g, flags_accel_z_g)."""
+    stem, _, unit = channel.rpartition("_")
+    return f"comp_{channel}", f"{stem}_comp_{unit}", f"flags_{channel}"
