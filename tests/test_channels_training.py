@@ -1,0 +1,55 @@
+"""Training an IMU's channels: the runs' temperature inputs are computed once for all the channels, and each
+channel's fit is the fit of that channel alone."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from imu_runs import imu_columns
+
+from fogd.calibration import features
+from fogd.calibration.channels import Settings, channel_jobs, fit_channels
+from fogd.calibration.models import FitOptions
+from fogd.calibration.training import TrainConfig, train
+from fogd.core.runio import Run
+from fogd.errors import InputError
+
+CHANNELS = ("rate_x_dph", "rate_z_dph", "accel_y_g")
+
+
+def imu_run(profile: str, seed: int) -> Run:
+    columns = imu_columns(profile, seed, channels=CHANNELS)
+    extra = {name: values for name, values in columns.items() if name.startswith("true_error_")}
+    channels = {name: columns[name] for name in CHANNELS}
+    return Run(f"{profile}.csv", columns["t_s"], channels["rate_z_dph"], columns["temp_c"], 1.0, profile, extra, channels)
+
+
+@pytest.fixture(scope="module")
+def runs() -> list[Run]:
+    return [imu_run("fast-ramp", 1), imu_run("cool-40-to-0", 2)]
+
+
+def test_inputs_are_computed_once_and_each_channel_fits_as_alone(runs, monkeypatch):
+    config = TrainConfig(method="linear", fit=FitOptions(progress=False))
+    settings = Settings(config, [config.inputs])
+    calls = []
+    batch = features.inputs_batch
+    monkeypatch.setattr(features, "inputs_batch", lambda *args: calls.append(args[1]) or batch(*args))
+    jobs = channel_jobs("", runs, [], None, settings)
+    assert [job.channel for job in jobs] == list(CHANNELS) and len(calls) == len(runs)  # once per run
+    fits = fit_channels(jobs, settings, n_jobs=1)
+    assert len(calls) == len(runs)  # the channels' training took the shared inputs
+    for fit in fits:
+        assert fit.error is None and fit.transcript.lines[0][1] == f"\n=== {fit.channel} ==="
+        alone = train([run.channel(fit.channel) for run in runs], config)
+        for key in ("params", "input_scaling", "output_scaling", "domain", "reference_dph"):
+            assert fit.chosen.document[key] == alone.document[key], (fit.channel, key)
+        np.testing.assert_array_equal(fit.chosen.error_dph, alone.error_dph)
+
+
+def test_one_channel_shares_nothing_and_a_missing_channel_is_named(runs):
+    settings = Settings(TrainConfig(method="linear"), [TrainConfig().inputs])
+    (job,) = channel_jobs("", runs, [], ["accel_y_g"], settings)
+    assert job.inputs is None and job.runs[0].rate_dph is runs[0].channels["accel_y_g"]
+    with pytest.raises(InputError, match="unit u: fast-ramp.csv has no channel accel_z_g"):
+        channel_jobs("u", runs, [], ["accel_z_g"], settings)
