@@ -4,6 +4,10 @@ exactly as its own single-axis run would be; a manifest of units, in parallel (j
 from __future__ import annotations
 
 import json
+import os
+import re
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -206,3 +210,24 @@ def test_manifest_through_joblibs_dask_backend_on_a_local_cluster(runs, tmp_path
     imu = modelfile.load_channels(tmp_path / "imu-1.json")
     assert imu.channels == ("rate_x_dph", "accel_z_g") and all(m.method == "pso-svr" for m in imu.values())
     assert modelfile.load(tmp_path / "models" / "gyro-2.json").method == "pso-svr"
+
+
+def test_the_readmes_three_axis_block_runs_as_written(tmp_path):
+    """The README's "Calibrating a three-axis IMU" commands, with shorter runs (2 Hz) and a tiny swarm."""
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    section = text[text.index("## Calibrating a three-axis IMU"):]
+    block = re.search(r"^```shell\n(.*?)^```", section, flags=re.S | re.M).group(1)
+    extra = {".venv/bin/fogd-sim": " --rate-hz 2", ".venv/bin/fogd-train": " --particles 4 --iterations 2 -q"}
+    lines = []
+    for line in block.splitlines():
+        command, _, _ = line.partition("  #")
+        lines.append(command.rstrip() + next((more for name, more in extra.items() if command.startswith(name)), ""))
+    (tmp_path / ".venv").symlink_to(Path(sys.executable).parent.parent)
+    done = subprocess.run(["bash", "-c", "set -e\n" + "\n".join(lines)], cwd=tmp_path, capture_output=True, text=True,
+                          timeout=600, env={**os.environ, "MPLBACKEND": "Agg"})  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    models = modelfile.load_channels(tmp_path / "imu.json")
+    assert models.version == 3 and len(models) == 6
+    header = (tmp_path / "imu-compensated.csv").read_text().split("\n", 1)[0].split(",")
+    assert sum(name.startswith("flags_") for name in header) == 6 and "rate_x_comp_dph" in header
+    assert done.stdout.count("Table 4: imu-test.csv") == 12  # fogd-train's holdout and fogd-replay, each channel
