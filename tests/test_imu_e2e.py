@@ -127,15 +127,14 @@ def test_a_recorded_multi_channel_run_plays_and_records_back_exactly(tmp_path, p
     header = ",".join(["t_s", *CHANNELS, "temp_c"])
     np.savetxt(run_csv, table, delimiter=",", header=header, comments="", fmt="%.17g")
     _, output, stderr = emulate_and_record(
-        tmp_path, ["--csv", str(run_csv)], ["--protocol", protocol, "--temp-rate-hz", "100"],
+        tmp_path, ["--csv", str(run_csv)], ["--protocol", protocol],
         ["--protocol", protocol, "--channels", "all"], rows,
     )  # fmt: skip
     recorded = read_run(output)
-    expected = GYRO_CHANNELS + (ACCEL_CHANNELS if protocol == "kvh-a" else ())
-    assert list(recorded.channels) == list(expected) and recorded.rows == rows, stderr
+    assert list(recorded.channels) == list(CHANNELS) and recorded.rows == rows, stderr
     for axis, channel in enumerate(GYRO_CHANNELS):
         np.testing.assert_array_equal(recorded.channels[channel], gyro_dph[:, axis], channel)
-    for axis, channel in enumerate(ACCEL_CHANNELS if protocol == "kvh-a" else ()):
+    for axis, channel in enumerate(ACCEL_CHANNELS):
         np.testing.assert_array_equal(recorded.channels[channel], accel_g[:, axis], channel)
     np.testing.assert_array_equal(recorded.temp_c, temp_c)
 
@@ -151,7 +150,7 @@ def one_line(command: list[str]) -> tuple[int, str]:
     [
         ([*EMU, "--profile", "fast-ramp", "--protocol", "fogd", "--rotfmt", "delta"], "kvh-a only"),
         ([*EMU, "--profile", "fast-ramp", "--protocol", "ascii", "--imu"], "one gyro axis"),
-        ([*RECORD, "--port", "/dev/null", "-o", "/dev/null", "--protocol", "fogd", "--channels", "accel_x_g"], "do not carry"),
+        ([*RECORD, "--port", "/dev/null", "-o", "/dev/null", "--protocol", "ascii", "--channels", "accel_x_g"], "do not carry"),
         ([*RECORD, "--port", "/dev/null", "-o", "/dev/null", "--channels", "rate_w_dph"], "unknown channel"),
         ([*RECORD, "--port", "/dev/null", "-o", "/dev/null", "--channels", "all", "--axis", "x"], "give one of them"),
         ([*RECORD, "--port", "/dev/null", "-o", "/dev/null", "--protocol", "ascii", "--linfmt", "delta"], "kvh-a only"),

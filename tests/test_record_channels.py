@@ -56,7 +56,7 @@ def test_decimated_rows_are_means_of_every_channel():
 
 def test_chosen_channels_follow_what_the_protocol_carries():
     assert chosen_channels("all", KVH) == list(CHANNELS)
-    assert chosen_channels("all", get("fogd")) == ["rate_x_dph", "rate_y_dph", "rate_z_dph"]
+    assert chosen_channels("all", get("fogd")) == list(CHANNELS)  # IMU frames (type 04)
     assert chosen_channels("all", get("ascii")) == ["rate_z_dph"]
     assert chosen_channels("accel_z_g, rate_x_dph", KVH) == ["rate_x_dph", "accel_z_g"]  # file order, not typed order
     with pytest.raises(UsageError):

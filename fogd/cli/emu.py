@@ -46,7 +46,7 @@ def parser() -> ArgumentParser:
         "recorded run (--csv t_s,rate_dph,temp_c) until the data, --count or --duration-s ends, or SIGTERM/SIGINT;\n"
         "then waits (at most --drain-s) for the reader to take what was written, and prints a summary on stderr.\n"
         "An IMU (--profile with --imu, or a --csv run with rate_x_dph..accel_z_g columns) streams every channel:\n"
-        "kvh-a frames carry three gyros and three accelerometers, fogd rate frames the three gyros.",
+        "kvh-a frames and fogd IMU frames (type 04, temperature in each) carry three gyros and three accelerometers.",
         epilog="protocols: kvh-a = KVH Format A (rate on z in rad/s float32, x = y = 0, whole-degree temperature,\n"
         "status 0x77, seq 0..127; an IMU: all six channels in the unit settings below); fogd = fogd rate frames at the sample rate and temperature frames at\n"
         "--temp-rate-hz, each with its own sequence and device time; ascii = fogd 'I,t_s,rate_dph,temp_c' lines.\n"

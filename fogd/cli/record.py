@@ -52,8 +52,8 @@ def parser() -> ArgumentParser:
         "Bad frames are counted and dropped; an unplugged port is reopened and recording continues. "
         "Stop with Ctrl-C or SIGTERM. By default one gyro axis is recorded (--axis), for every protocol; "
         "a KVH IMU's frames carry three gyros and three accelerometers: --channels all records them all in one "
-        "run (t_s,rate_x_dph,rate_y_dph,rate_z_dph,accel_x_g,accel_y_g,accel_z_g,temp_c; fogd frames: the "
-        "gyros; ascii: z only). Whatever the unit's output settings, the file holds deg/h, g and C.",
+        "run (t_s,rate_x_dph,rate_y_dph,rate_z_dph,accel_x_g,accel_y_g,accel_z_g,temp_c; also from fogd IMU "
+        "frames; ascii: z only). Whatever the unit's output settings, the file holds deg/h, g and C.",
         formatter_class=DefaultsHelpFormatter,
     )
     p.add_argument("--port", required=True, metavar="PATH", help="serial port the FOG is on")

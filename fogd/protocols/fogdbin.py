@@ -1,5 +1,6 @@
-"""fogd's own binary frames (protocol `fogd`): a FOG-rate frame, a temperature frame and a compensated-output
-frame, each with a sync word, type, length, per-type sequence counter, device timestamp and CRC-16.
+"""fogd's own binary frames (protocol `fogd`): a FOG-rate frame, a temperature frame, a compensated-output frame
+and an IMU frame (three gyros, three accelerometers and a temperature), each with a sync word, type, length,
+per-type sequence counter, device timestamp and CRC-16.
 
 Rate and temperature frames carry their own timestamps and counters so a rig with a separate FOG and
 temperature sensor can feed fogd at different rates, over one link or two. Byte tables: docs/fogd-frames.md.
@@ -18,6 +19,7 @@ SYNC = b"\xf0\x0d"
 TYPE_RATE = 0x01
 TYPE_TEMP = 0x02
 TYPE_COMP = 0x03
+TYPE_IMU = 0x04
 SEQ_MODULUS = 1 << 16
 F32_MAX = 3.4028234663852886e38
 MAX_TIME_US = round(MAX_T_S * 1e6)
@@ -26,6 +28,7 @@ _HEADER = struct.Struct(">2sBBHQ")  # sync, type, length (whole frame), seq, dev
 _RATE = struct.Struct(">3fB")  # rate xyz (deg/h), axes
 _TEMP = struct.Struct(">f")  # temperature (C)
 _COMP = struct.Struct(">3f3f3fBffH")  # rate, compensation, compensated rate xyz (deg/h), axes, C, C/s, flags
+_IMU = struct.Struct(">3f3fBBf")  # rate xyz (deg/h), accel xyz (g), gyro axes, accel axes, temperature (C)
 _CRC = struct.Struct(">H")
 _F32 = struct.Struct(">f")
 HEADER_LEN = _HEADER.size
@@ -34,6 +37,7 @@ FRAME_LENGTHS = {
     TYPE_RATE: HEADER_LEN + _RATE.size + _CRC.size,
     TYPE_TEMP: HEADER_LEN + _TEMP.size + _CRC.size,
     TYPE_COMP: HEADER_LEN + _COMP.size + _CRC.size,
+    TYPE_IMU: HEADER_LEN + _IMU.size + _CRC.size,
 }
 
 
@@ -60,17 +64,21 @@ def _axes(byte: int, x: float, y: float, z: float) -> tuple[Mask3, Mask3]:
 
 
 class FogdProtocol(Protocol):
-    """fogd frames; comp_axes are the axes whose rates `reencode` replaces in a rate frame."""
+    """fogd frames; comp_axes and comp_accel_axes are the gyro and accelerometer axes whose values `reencode`
+    replaces in a rate or IMU frame."""
 
     name = "fogd"
     sync = SYNC
     max_frame_len = 255
     seq_modulus = SEQ_MODULUS
+    accel_axes = (True, True, True)  # in IMU frames (type 04)
 
-    def __init__(self, comp_axes: Sequence[int] = (0, 1, 2)) -> None:
-        if not set(comp_axes) <= {0, 1, 2}:
-            raise ConfigError(f"fogd: comp_axes must be among 0, 1, 2 (x, y, z), not {list(comp_axes)}")
+    def __init__(self, comp_axes: Sequence[int] = (0, 1, 2), comp_accel_axes: Sequence[int] = (0, 1, 2)) -> None:
+        for option, axes in (("comp_axes", comp_axes), ("comp_accel_axes", comp_accel_axes)):
+            if not set(axes) <= {0, 1, 2}:
+                raise ConfigError(f"fogd: {option} must be among 0, 1, 2 (x, y, z), not {list(axes)}")
         self.comp_axes = tuple(sorted(set(comp_axes)))
+        self.comp_accel_axes = tuple(sorted(set(comp_accel_axes)))
 
     def frame_length(self, buf: bytes, start: int) -> int:
         if len(buf) - start < 4:
@@ -103,10 +111,16 @@ class FogdProtocol(Protocol):
                 "fogd", "comp", "comp", seq, t_s, (x, y, z), valid, present, temp_c, raw,
                 temp_rate_cps, (cx, cy, cz), (rx, ry, rz), flags,
             )
+        if frame_type == TYPE_IMU:
+            x, y, z, ax, ay, az, axes, accel_axes, temp_c = _IMU.unpack_from(raw, HEADER_LEN)
+            valid, present = _axes(axes, x, y, z)
+            accel_valid, accel_present = _axes(accel_axes, ax, ay, az)
+            return Frame("fogd", "imu", "imu", seq, t_s, (x, y, z), valid, present, temp_c, raw,
+                         accel_g=(ax, ay, az), accel_valid=accel_valid, accel_present=accel_present)  # fmt: skip
         return Frame("fogd", "other", "other", seq, t_s, raw=raw)
 
     def encode(self, frame: Frame) -> bytes:
-        """A rate, temp or comp frame from a record of that kind (t_s must be >= 0; it travels in whole us)."""
+        """A rate, temp, comp or imu frame from a record of that kind (t_s must be >= 0; it travels in whole us)."""
         if frame.t_s is None:
             raise ValueError("fogd: a fogd frame needs t_s")
         if frame.kind == "rate":
@@ -124,8 +138,15 @@ class FogdProtocol(Protocol):
                 frame.flags,
             )  # fmt: skip
             frame_type = TYPE_COMP
+        elif frame.kind == "imu":
+            payload = _pack(
+                _IMU, *_rates(frame.rate_dph), *_rates(frame.accel_g),
+                _axes_byte(frame.axis_valid, frame.axis_present), _axes_byte(frame.accel_valid, frame.accel_present),
+                NAN if frame.temp_c is None else frame.temp_c,
+            )  # fmt: skip
+            frame_type = TYPE_IMU
         else:
-            raise ValueError(f"fogd: frames carry kind 'rate', 'temp' or 'comp', not {frame.kind!r}")
+            raise ValueError(f"fogd: frames carry kind 'rate', 'temp', 'comp' or 'imu', not {frame.kind!r}")
         seq = (frame.seq or 0) % SEQ_MODULUS
         time_us = round(frame.t_s * 1e6)
         if not 0 <= time_us <= MAX_TIME_US:
@@ -133,9 +154,11 @@ class FogdProtocol(Protocol):
         body = _HEADER.pack(SYNC, frame_type, FRAME_LENGTHS[frame_type], seq, time_us) + payload
         return body + _CRC.pack(crc16_ccitt_false(body))
 
-    def reencode(self, frame: Frame, rate_dph: Sequence[float]) -> bytes:
+    def reencode(self, frame: Frame, rate_dph: Sequence[float], accel_g: Sequence[float] | None = None) -> bytes:
+        """As `Protocol.reencode`; in an IMU frame, with `accel_g`, the valid accelerometers of comp_accel_axes
+        are replaced too."""
         raw = frame.raw
-        if frame.kind != "rate":
+        if frame.kind not in ("rate", "imu"):
             return raw
         out = bytearray(raw)
         for axis in self.comp_axes:
@@ -144,6 +167,10 @@ class FogdProtocol(Protocol):
                     _F32.pack_into(out, HEADER_LEN + 4 * axis, rate_dph[axis])
                 except OverflowError:  # beyond float32 (a rate near its limit, compensated): infinity
                     _F32.pack_into(out, HEADER_LEN + 4 * axis, f32(rate_dph[axis]))
+        if accel_g is not None and frame.kind == "imu":
+            for axis in self.comp_accel_axes:
+                if frame.accel_valid[axis]:
+                    _F32.pack_into(out, HEADER_LEN + 12 + 4 * axis, f32(accel_g[axis]))
         _CRC.pack_into(out, len(out) - 2, crc16_ccitt_false(out[:-2]))
         return bytes(out)
 

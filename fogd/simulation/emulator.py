@@ -4,7 +4,8 @@ This module owns the sample sources (`SimSource`, `RunSource`), turning samples 
 injection and its JSON-lines ledger, real-time pacing with backpressure, and the pty itself (`open_pty`: raw
 mode, an atomically re-pointed symlink, unplug and replug). An IMU source (a simulated IMU, a multi-channel
 recorded run) streams all three gyros and, in KVH frames, the three accelerometers, in whatever output the
-protocol's options set (rate or delta, radians or degrees, g or delta velocity). `Emulator(...).start()` streams on a thread and
+protocol's options set (rate or delta, radians or degrees, g or delta velocity); fogd IMU frames (type 04)
+carry the same six channels. `Emulator(...).start()` streams on a thread and
 returns the slave's path; `stop()` and `join()` end it, draining what the reader has not yet taken.
 """
 
@@ -39,7 +40,7 @@ from fogd.errors import (
     InputError,
     describe_os_error,
 )
-from fogd.protocols.base import ALL_AXES, NAN, Z_ONLY, Frame, FrameError
+from fogd.protocols.base import ALL_AXES, NAN, NO_AXES, Z_ONLY, Frame, FrameError
 from fogd.simulation.profiles import Profile
 
 if TYPE_CHECKING:
@@ -345,7 +346,7 @@ class Emulator:
         self.protocol = protocols.get(protocol, **options)
         self.imu = bool(getattr(source, "imu", False))
         if self.imu and protocol == "ascii":
-            raise ConfigError("ascii lines carry one gyro axis: an IMU needs --protocol kvh-a (or fogd, gyros only)")
+            raise ConfigError("ascii lines carry one gyro axis: an IMU needs --protocol kvh-a or fogd")
         self.faults = faults or Faults()
         if speed is not None and not (speed > 0 and math.isfinite(speed)):
             raise ConfigError(f"speed must be a positive number, not {speed!r}")
@@ -545,9 +546,9 @@ class Emulator:
                 index += 1
 
     def _frames(self, index: int, t_s: float, rate_dph: object, temp_c: float) -> list[Frame]:
-        """The wire records for one sample: the rate on z (KVH x and y read zero), or an IMU's three gyros (and,
-        in KVH frames, accelerometers), and for `fogd` the temperature frames that fell due since the last
-        sample, each with its own sequence counter."""
+        """The wire records for one sample: the rate on z (KVH x and y read zero) and for `fogd` the temperature
+        frames that fell due since the last sample, each with its own sequence counter; or an IMU's six channels
+        and temperature in one frame (KVH Format A, fogd type 04)."""
         name = self.protocol.name
         if self.imu:
             gyro, accel = rate_dph  # type: ignore[misc]
@@ -557,18 +558,20 @@ class Emulator:
                     accel = tuple(0.0 if value != value else value for value in accel)
                 return [Frame(name, "imu", "A", index % 128, t_s, gyro, ALL_AXES, ALL_AXES, temp_c,
                               accel_g=accel, accel_valid=ALL_AXES, accel_present=ALL_AXES)]  # fmt: skip
-            rates, present = gyro, ALL_AXES
-        elif name == "kvh-a":
+            if name == "fogd":  # one IMU frame (type 04) per sample, temperature included
+                accel_present = NO_AXES if accel is None else ALL_AXES
+                return [Frame(name, "imu", "imu", index % 65536, t_s, gyro, ALL_AXES, ALL_AXES, temp_c,
+                              accel_g=(NAN, NAN, NAN) if accel is None else accel, accel_valid=accel_present,
+                              accel_present=accel_present)]  # fmt: skip
+        if name == "kvh-a":
             return [Frame(name, "imu", "A", index % 128, t_s, (0.0, 0.0, rate_dph), ALL_AXES, ALL_AXES, temp_c)]
-        elif name == "ascii":
+        if name == "ascii":
             return [Frame(name, "imu", "I", None, t_s, (NAN, NAN, rate_dph), Z_ONLY, Z_ONLY, temp_c)]
-        else:
-            rates, present = (NAN, NAN, rate_dph), Z_ONLY
         frames = []
         while self._temp_frames * self.source.rate_hz <= index * self.temp_rate_hz:
             frames.append(Frame(name, "temp", "temp", self._temp_frames % 65536, t_s, temp_c=temp_c))
             self._temp_frames += 1
-        frames.append(Frame(name, "rate", "rate", index % 65536, t_s, rates, present, present))
+        frames.append(Frame(name, "rate", "rate", index % 65536, t_s, (NAN, NAN, rate_dph), Z_ONLY, Z_ONLY))
         return frames
 
     def _emissions(self, index: int, t_s: float, rate_dph: object, temp_c: float) -> list[_Emission]:
