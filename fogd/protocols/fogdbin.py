@@ -1,6 +1,7 @@
-"""fogd's own binary frames (protocol `fogd`): a FOG-rate frame, a temperature frame, a compensated-output frame
-and an IMU frame (three gyros, three accelerometers and a temperature), each with a sync word, type, length,
-per-type sequence counter, device timestamp and CRC-16.
+"""fogd's own binary frames (protocol `fogd`): a FOG-rate frame, a temperature frame, a compensated-output frame,
+an IMU frame (three gyros, three accelerometers and a temperature) and a compensated-IMU frame (the daemon's
+output for a multi-channel model: every channel's reading, compensation, compensated value and flags), each
+with a sync word, type, length, per-type sequence counter, device timestamp and CRC-16.
 
 Rate and temperature frames carry their own timestamps and counters so a rig with a separate FOG and
 temperature sensor can feed fogd at different rates, over one link or two. Byte tables: docs/fogd-frames.md.
@@ -10,6 +11,7 @@ Everything is big-endian, like the KVH frames; floats are IEEE-754 single.
 import math
 import struct
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 from ..errors import ConfigError
 from .base import MAX_T_S, NAN, Axes3, Frame, FrameError, Mask3, Protocol
@@ -20,6 +22,7 @@ TYPE_RATE = 0x01
 TYPE_TEMP = 0x02
 TYPE_COMP = 0x03
 TYPE_IMU = 0x04
+TYPE_COMP_IMU = 0x05
 SEQ_MODULUS = 1 << 16
 F32_MAX = 3.4028234663852886e38
 MAX_TIME_US = round(MAX_T_S * 1e6)
@@ -29,6 +32,9 @@ _RATE = struct.Struct(">3fB")  # rate xyz (deg/h), axes
 _TEMP = struct.Struct(">f")  # temperature (C)
 _COMP = struct.Struct(">3f3f3fBffH")  # rate, compensation, compensated rate xyz (deg/h), axes, C, C/s, flags
 _IMU = struct.Struct(">3f3fBBf")  # rate xyz (deg/h), accel xyz (g), gyro axes, accel axes, temperature (C)
+# rate xyz (deg/h), accel xyz (g), comp gyro xyz, comp accel xyz, compensated gyro xyz, compensated accel xyz,
+# gyro axes, accel axes, compensated channels, temperature (C), temperature rate (C/s), flags of the six channels
+_COMP_IMU = struct.Struct(">3f3f3f3f3f3fBBBff6H")
 _CRC = struct.Struct(">H")
 _F32 = struct.Struct(">f")
 HEADER_LEN = _HEADER.size
@@ -38,6 +44,7 @@ FRAME_LENGTHS = {
     TYPE_TEMP: HEADER_LEN + _TEMP.size + _CRC.size,
     TYPE_COMP: HEADER_LEN + _COMP.size + _CRC.size,
     TYPE_IMU: HEADER_LEN + _IMU.size + _CRC.size,
+    TYPE_COMP_IMU: HEADER_LEN + _COMP_IMU.size + _CRC.size,
 }
 
 
@@ -117,6 +124,15 @@ class FogdProtocol(Protocol):
             accel_valid, accel_present = _axes(accel_axes, ax, ay, az)
             return Frame("fogd", "imu", "imu", seq, t_s, (x, y, z), valid, present, temp_c, raw,
                          accel_g=(ax, ay, az), accel_valid=accel_valid, accel_present=accel_present)  # fmt: skip
+        if frame_type == TYPE_COMP_IMU:
+            record = _comp_imu(raw, seq, t_s)
+            flags = 0
+            for value in record.flags:
+                flags |= value
+            # the gyros as a 'comp' frame; every channel, accelerometers too, through decode_comp_imu(frame.raw)
+            return Frame("fogd", "comp", "comp_imu", seq, t_s, record.rate_dph, record.axis_valid, record.axis_present,
+                         record.temp_c, raw, record.temp_rate_cps, record.comp[:3], record.compensated[:3], flags,
+                         accel_g=record.accel_g, accel_valid=record.accel_valid, accel_present=record.accel_present)  # fmt: skip
         return Frame("fogd", "other", "other", seq, t_s, raw=raw)
 
     def encode(self, frame: Frame) -> bytes:
@@ -173,6 +189,70 @@ class FogdProtocol(Protocol):
                     _F32.pack_into(out, HEADER_LEN + 12 + 4 * axis, f32(accel_g[axis]))
         _CRC.pack_into(out, len(out) - 2, crc16_ccitt_false(out[:-2]))
         return bytes(out)
+
+
+@dataclass(frozen=True)
+class CompImu:
+    """One compensated-IMU frame (type 05): the six channels in the order rate x, y, z (deg/h), accel x, y, z
+    (g). `covered[i]` says whether channel i was compensated; a channel passed through has comp 0, its
+    reading as the compensated value, and flags 0."""
+
+    seq: int
+    t_s: float
+    rate_dph: Axes3
+    accel_g: Axes3
+    axis_valid: Mask3
+    axis_present: Mask3
+    accel_valid: Mask3
+    accel_present: Mask3
+    comp: tuple[float, ...]  # six: the compensation subtracted
+    compensated: tuple[float, ...]  # six: reading - comp
+    covered: tuple[bool, ...]  # six
+    temp_c: float
+    temp_rate_cps: float
+    flags: tuple[int, ...]  # six: fogd.core.flags.Flag bits of each channel
+
+
+def encode_comp_imu(record: CompImu) -> bytes:
+    """A type-05 frame (t_s >= 0, in whole us)."""
+    covered = 0
+    for i, done in enumerate(record.covered):
+        if done:
+            covered |= 1 << i if i < 3 else 0x10 << (i - 3)
+    payload = _pack(
+        _COMP_IMU, *_rates(record.rate_dph), *_rates(record.accel_g), *record.comp, *record.compensated,
+        _axes_byte(record.axis_valid, record.axis_present), _axes_byte(record.accel_valid, record.accel_present),
+        covered, record.temp_c, record.temp_rate_cps, *record.flags,
+    )  # fmt: skip
+    time_us = round(record.t_s * 1e6)
+    if not 0 <= time_us <= MAX_TIME_US:
+        raise ValueError(f"fogd: t_s {record.t_s!r} is outside 0..2^53 us")
+    length = FRAME_LENGTHS[TYPE_COMP_IMU]
+    body = _HEADER.pack(SYNC, TYPE_COMP_IMU, length, record.seq % SEQ_MODULUS, time_us) + payload
+    return body + _CRC.pack(crc16_ccitt_false(body))
+
+
+def decode_comp_imu(raw: bytes) -> CompImu:
+    """Every field of a whole type-05 frame (CRC checked); FrameError or ValueError otherwise."""
+    if not crc16_ccitt_false_ok(raw):
+        raise FrameError("bad_crc", "fogd: CRC mismatch")
+    _, frame_type, length, seq, time_us = _HEADER.unpack_from(raw)
+    if frame_type != TYPE_COMP_IMU or not length == len(raw) == FRAME_LENGTHS[TYPE_COMP_IMU]:
+        raise ValueError(f"fogd: not a whole compensated-IMU frame ({len(raw)} bytes, type {frame_type})")
+    return _comp_imu(raw, seq, time_us / 1e6)
+
+
+def _comp_imu(raw: bytes, seq: int, t_s: float) -> CompImu:
+    values = _COMP_IMU.unpack_from(raw, HEADER_LEN)
+    rates, accels = values[0:3], values[3:6]
+    axes, accel_axes, covered, temp_c, temp_rate_cps = values[18:23]
+    valid, present = _axes(axes, *rates)
+    accel_valid, accel_present = _axes(accel_axes, *accels)
+    return CompImu(
+        seq, t_s, rates, accels, valid, present, accel_valid, accel_present, values[6:12], values[12:18],
+        tuple(bool(covered & (1 << i if i < 3 else 0x10 << (i - 3))) for i in range(6)), temp_c, temp_rate_cps,
+        values[23:29],
+    )  # fmt: skip
 
 
 def f32(value: float) -> float:
