@@ -41,6 +41,7 @@ from fogd.errors import (
     describe_os_error,
 )
 from fogd.protocols.base import ALL_AXES, NAN, NO_AXES, Z_ONLY, Frame, FrameError
+from fogd.protocols.kvh import KvhProtocol, settings_reply
 from fogd.simulation.profiles import Profile
 
 if TYPE_CHECKING:
@@ -60,6 +61,8 @@ READER_SETTLE_S = 0.1
 UNPLUG_DRAIN_S = 0.2
 MAX_GARBAGE_BYTES = 16
 FAULTS = ("garbage", "bitflip", "drop", "repeat", "nan", "clear_status", "split")
+CONFIG_POLL_S = 0.01  # kvh-a in configuration mode: how often the input is looked at
+MAX_INPUT_BYTES = 4096  # of an unended input line kept
 HEADER_BYTES = {"kvh-a": 4, "fogd": 4, "ascii": 0}  # bytes a bit flip leaves alone: sync, type, length
 
 
@@ -235,13 +238,15 @@ class PtyEndpoint:
         """False when there is no reader and the buffer is full (poll would not block then)."""
         return any(events & select.POLLOUT for _, events in self._poll.poll(timeout_ms))
 
-    def discard_input(self) -> None:
-        """Read and ignore what the reader wrote (e.g. KVH =CONFIG commands), so its writes never block."""
+    def read_input(self) -> bytes:
+        """What the reader wrote (e.g. KVH =CONFIG commands and queries), taken so its writes never block."""
+        data = b""
         try:
-            while os.read(self.master_fd, 4096):
-                pass
+            while chunk := os.read(self.master_fd, 4096):
+                data += chunk
         except OSError:  # EAGAIN: nothing more; EIO: no reader
             pass
+        return data
 
     def drain(self, timeout_s: float) -> bool:
         """Wait (at most timeout_s) until the reader has taken every written byte; closing the master
@@ -341,7 +346,7 @@ class Emulator:
         protocol_options: dict[str, object] | None = None,
     ) -> None:
         options = dict(protocol_options or {})
-        if "delta" in (options.get("rotfmt"), options.get("linfmt")):
+        if protocol == "kvh-a":  # the unit's data rate (=DR): what a delta output is per, what ?DR answers
             options.setdefault("rate_hz", source.rate_hz)
         self.protocol = protocols.get(protocol, **options)
         self.imu = bool(getattr(source, "imu", False))
@@ -382,6 +387,8 @@ class Emulator:
         self._schedule_shift_s = 0.0
         self._said_no_reader = False
         self._unsent = b""  # drop_when_full: the rest of a frame the pty took only part of
+        self._input = b""  # the reader's last line, not yet ended
+        self._config_mode = False  # kvh-a: between =CONFIG,1 and =CONFIG,0 the unit answers and does not stream
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._error: BaseException | None = None
@@ -476,6 +483,12 @@ class Emulator:
         while pending is not None:
             if self._stop.is_set():
                 return
+            if self._config_mode and unplugged_until is None:
+                paused = time.monotonic()
+                self._stop.wait(CONFIG_POLL_S)
+                self._answer_input()
+                self._schedule_shift_s += time.monotonic() - paused  # the stream resumes at its pace, no burst
+                continue
             now = time.monotonic()
             if unplugged_until is None and faults.unplug_every_s and now - connected_at >= faults.unplug_every_s:
                 self._finish_unsent()
@@ -506,7 +519,7 @@ class Emulator:
                 for emission in emissions:
                     emission.lose("unplugged")
             else:
-                self.pty.discard_input()
+                self._answer_input()
                 self._send(emissions)
             self._account(emissions)
             if paced and pending is not None:
@@ -515,6 +528,27 @@ class Emulator:
                 if delay_s > 0:
                     self._stop.wait(delay_s)
         self._finish_unsent()
+
+    def _answer_input(self) -> None:
+        """Take what the reader wrote. A KVH unit answers its setting queries (`?ROTFMT` -> `ROTFMT,RATE`, as
+        fogd.protocols.kvh.settings_reply) and sends no frames between `=CONFIG,1` and `=CONFIG,0`; anything
+        else (other commands, other protocols) is ignored."""
+        data = self.pty.read_input()
+        if not data:
+            return
+        *lines, self._input = (self._input + data)[-MAX_INPUT_BYTES:].split(b"\n")
+        if not isinstance(self.protocol, KvhProtocol):
+            return
+        for line in lines:
+            command = line.strip().upper()
+            if command in (b"=CONFIG,1", b"=CONFIG,0"):
+                self._config_mode = command.endswith(b"1")
+            elif command.startswith(b"?"):
+                try:
+                    reply = settings_reply(self.protocol, command[1:].decode("ascii", "replace"))
+                except ValueError:  # a query this emulator does not know: no answer
+                    continue
+                self._write(reply)
 
     def _finish_unsent(self) -> None:
         self._write(self._unsent)
