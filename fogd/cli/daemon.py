@@ -19,10 +19,15 @@ from typing import Any, Sequence
 from fogd import __version__, protocols
 from fogd.cli.common import ArgumentParser, run
 from fogd.core import modelfile
+from fogd.core.channels import ChannelModels
+from fogd.core.columns import SINGLE_CHANNEL
 from fogd.core.flags import Flag
+from fogd.core.frozen import FrozenModel
 from fogd.errors import ConfigError, DeviceError
 from fogd.protocols.lexer import Lexer
-from fogd.serving import config, statsfile
+from fogd.serving import config, statsfile, unitquery
+from fogd.serving.channels import as_models, method
+from fogd.serving.channels import plan as channel_plan
 from fogd.serving.config import AXES, OPTION_BY_KEY, OPTIONS
 from fogd.serving.daemon import RING_CAPACITY, Daemon, Reload
 from fogd.serving.outputs import Formatter, Writer, open_sink
@@ -56,8 +61,9 @@ log = logging.getLogger("fogd.daemon")
 def parser() -> ArgumentParser:
     p = ArgumentParser(
         prog=PROG,
-        description="Real-time temperature compensation for a fibre-optic gyro: reads frames from --port, "
-        "subtracts the model's thermal error f(T, dT/dt) from one axis and writes the result to --out. "
+        description="Real-time temperature compensation for a fibre-optic gyro or IMU: reads frames from --port, "
+        "subtracts the model's thermal error f(T, dT/dt) from one axis (a single-axis model, --axis) or from every "
+        "gyro and accelerometer a three-axis model covers, and writes the result to --out. "
         "SIGTERM or SIGINT stop cleanly (output flushed, exit 0); SIGHUP reloads the config and the model; "
         "SIGUSR1 logs the counters.",
         epilog=f"Config keys: {', '.join(OPTION_BY_KEY)} (see config/fogd.yaml). Without --config, "
@@ -68,6 +74,10 @@ def parser() -> ArgumentParser:
         "no out set while stdout is not a terminal, or out '-' while stdout is the journal).",
     )
     for option in OPTIONS:
+        if option.kind == "flag":
+            p.add_argument("--" + option.key.replace("_", "-"), dest=option.key, action=argparse.BooleanOptionalAction,
+                           default=argparse.SUPPRESS, help=option.help)  # fmt: skip
+            continue
         p.add_argument(
             "--" + option.key.replace("_", "-"),
             dest=option.key,
@@ -199,8 +209,8 @@ def body(argv: Sequence[str] | None) -> int:
     if args.demo and not sources.given("protocol"):
         settings["protocol"] = DEMO_PROTOCOL
     configure_logging(args.verbose, args.quiet)
-    protocol = make_protocol(settings)
-    model = modelfile.load(settings["model"])
+    model = load_model(settings["model"])
+    protocol = make_protocol(settings, model)
     if args.demo:
         return demo(settings, protocol, model, out_given=sources.given("out"))
     return serve(settings, protocol, model, sources=sources)
@@ -229,12 +239,27 @@ def check_output(settings: dict[str, Any], *, out_given: bool) -> None:
                           "(or --out - to write to stdout on purpose)")  # fmt: skip
 
 
-def make_protocol(settings: dict[str, Any]) -> protocols.Protocol:
+def load_model(path: str) -> FrozenModel | ChannelModels:
+    """A single-channel file as its model (today's daemon), a multi-channel file as its models by channel."""
+    models = modelfile.load_channels(path)
+    return models if models.version == modelfile.CHANNELS_VERSION else models[SINGLE_CHANNEL]
+
+
+def make_protocol(settings: dict[str, Any], model: FrozenModel | ChannelModels | None = None) -> protocols.Protocol:
+    """The port's protocol with the unit's settings, re-encoding (`same`) exactly the channels the model
+    compensates; ConfigError for a model channel the protocol does not carry."""
+    name = settings["protocol"]
+    if name == "ascii":
+        return protocols.get(name, max_jump_dph=settings.get("max_rate_jump_dph"))
     axis = AXES.index(settings["axis"])
     options: dict[str, Any] = {"comp_axes": (axis,)}
-    if settings["protocol"] == "ascii":
-        options = {"max_jump_dph": settings.get("max_rate_jump_dph")}
-    return protocols.get(settings["protocol"], **options)
+    if model is not None:
+        chosen = channel_plan(as_models(model), protocols.get(name), axis)
+        options = {"comp_axes": chosen.gyro_axes, "comp_accel_axes": chosen.accel_axes}
+    if name == "kvh-a":
+        options.update({key: settings[key] for key in ("rotfmt", "angle_unit", "linfmt", "lin_unit", "temp_unit")})
+        options["rate_hz"] = settings["rate_hz"]
+    return protocols.get(name, **options)
 
 
 def reloader(sources: Settings, running: dict[str, Any]):
@@ -243,11 +268,11 @@ def reloader(sources: Settings, running: dict[str, Any]):
 
     def reload() -> Reload:
         settings = sources.read()
-        model = modelfile.load(settings["model"])
+        model = load_model(settings["model"])
         for option in OPTIONS:
             if not option.reloadable and settings[option.key] != running[option.key]:
                 log.warning("reload: %s changed to %r; restart fogd to apply it", option.key, settings[option.key])
-        log.info("reload: model %s (%s) validated", model.name, model.method)
+        log.info("reload: model %s (%s) validated", model.name, method(as_models(model)))
         return Reload(model, settings["temp_stale_s"], settings["status_interval_s"])
 
     return reload
@@ -258,8 +283,12 @@ def serve(settings: dict[str, Any], protocol: protocols.Protocol, model, *, on_d
     path, baud = settings["port"], settings["baud"]
     instance = sources.instance if sources is not None else config.DEFAULT_INSTANCE
     stats_path = config.stats_path(settings["stats_file"], instance)
+    axis = AXES.index(settings["axis"])
+    channels = channel_plan(as_models(model), protocol, axis)
     port = open_port(path, baud)
     try:
+        if settings.get("query_settings"):
+            unitquery.check_settings(unitquery.query_settings(port, path), settings, path)
         if sources is not None:  # not the demo, which discards its output unless told otherwise
             check_output(settings, out_given=sources.given("out"))
         sink = open_sink(settings["out"], baud)
@@ -267,14 +296,14 @@ def serve(settings: dict[str, Any], protocol: protocols.Protocol, model, *, on_d
         port.close()
         raise
     reader = Reader(PortOpener(path, baud), Lexer(protocol), Ring(RING_CAPACITY), port=port)
-    axis = AXES.index(settings["axis"])
     daemon = Daemon(
         reader=reader,
         writer=Writer(sink),
-        formatter=Formatter(settings["out_format"], protocol, axis),
+        formatter=Formatter(settings["out_format"], protocol, axis, channels),
         model=model,
         rate_hz=settings["rate_hz"],
         axis=axis,
+        channels=channels,
         temp_stale_s=settings["temp_stale_s"],
         status_interval_s=settings["status_interval_s"],
         duration_s=settings["duration_s"],
@@ -297,10 +326,12 @@ def serve(settings: dict[str, Any], protocol: protocols.Protocol, model, *, on_d
     signal.signal(signal.SIGHUP, lambda *_: daemon.request_reload())
     signal.signal(signal.SIGUSR1, lambda *_: daemon.request_counters())
     log.info(
-        "reading %s (%s, %g Hz), model %s (%s), axis %s, output %s as %s%s",
-        path, protocol.name, settings["rate_hz"], model.name, model.method, settings["axis"], settings["out"],
-        settings["out_format"], f", stats {stats_path}" if stats_path else "",
+        "reading %s (%s, %g Hz), model %s (%s), %s, output %s as %s%s",
+        path, protocol.name, settings["rate_hz"], model.name, method(as_models(model)),
+        f"axis {settings['axis']}" if channels.single else f"{len(channels.covered)} channels",
+        settings["out"], settings["out_format"], f", stats {stats_path}" if stats_path else "",
     )  # fmt: skip
+    log.info("model %s %s", model.name, channels.describe())
     if on_daemon is not None:
         on_daemon(daemon)
     daemon.run()

@@ -21,6 +21,7 @@ from typing import Any, Callable
 import yaml
 
 from fogd import protocols
+from fogd.protocols import kvh
 from fogd.core.atomic import read_regular
 from fogd.core.numbers import number_in, whole_number
 from fogd.errors import ConfigError, describe_os_error
@@ -34,6 +35,7 @@ MAX_CONFIG_BYTES = 1 << 20
 MAX_YAML_NODES = 10_000
 MAX_SCALAR_CHARS = 1024
 AXES = ("x", "y", "z")
+KVH_ONLY = ("rotfmt", "angle_unit", "linfmt", "lin_unit", "temp_unit", "query_settings")  # a KVH unit's settings
 OUT_FORMATS = ("same", "fogd", "csv", "jsonl")
 NONE_WORDS = ("none", "off")  # for optional paths on the command line
 
@@ -91,6 +93,7 @@ class Option:
     metavar: str | None = None
     choices: tuple[str, ...] | None = None
     reloadable: bool = False  # applied by SIGHUP without a restart
+    # kind 'flag': true/false in the config file, --NAME / --no-NAME on the command line
 
 
 OPTIONS = (
@@ -111,8 +114,22 @@ OPTIONS = (
     Option("rate_hz", number_in(0.0, 100_000.0, "Hz", low_open=True), "number", 1000.0, "FOG sample rate, for the "
            "temperature-rate estimator and for output time where the protocol has no timestamp (KVH Format A has "
            "none) (0..100000 Hz; default: %(default)s)", "Hz", "HZ"),
-    Option("axis", _text, "choice", "z", "gyro axis the model compensates; the other axes pass through untouched "
-           "(default: %(default)s)", choices=AXES),
+    Option("axis", _text, "choice", "z", "gyro axis a single-axis model compensates; the other axes pass through "
+           "untouched (a three-axis model compensates every channel it has; default: %(default)s)", choices=AXES),
+    Option("rotfmt", _text, "choice", "rate", "protocol kvh-a: the unit's =ROTFMT, gyros as rate (angle/s) or delta "
+           "(angle per sample at rate_hz; compensation x sample period is subtracted) (default: %(default)s)",
+           choices=kvh.ROTFMTS),
+    Option("angle_unit", _text, "choice", "rad", "protocol kvh-a: the unit's =ROTUNITS (default: %(default)s)",
+           choices=kvh.ANGLE_UNITS),
+    Option("linfmt", _text, "choice", "accel", "protocol kvh-a: the unit's =LINFMT, accelerometers as accel (g) or "
+           "delta (velocity change per sample at rate_hz) (default: %(default)s)", choices=kvh.LINFMTS),
+    Option("lin_unit", _text, "choice", "m", "protocol kvh-a: the unit's =LINUNITS, delta velocity in m/s or ft/s "
+           "(default: %(default)s)", choices=kvh.LIN_UNITS),
+    Option("temp_unit", _text, "choice", "C", "protocol kvh-a: the unit's =TEMPUNITS (default: %(default)s)",
+           choices=kvh.TEMP_UNITS),
+    Option("query_settings", bool, "flag", False, "protocol kvh-a: at start, ask the unit for its settings "
+           "(=CONFIG,1, ?ROTFMT ?ROTUNITS ?LINFMT ?LINUNITS ?TEMPUNITS ?DR, =CONFIG,0) and refuse to run if one "
+           "contradicts the config (exit 78) (default: off)"),
     Option("temp_stale_s", number_in(0.0, 3600.0, "s", low_open=True), "number", 2.0, "flag samples TEMP_STALE "
            "when the newest temperature arrived more than this long ago (0..3600 s; default: %(default)s)", "s", "S",
            reloadable=True),
@@ -198,6 +215,10 @@ def _value(path: str, option: Option, value: Any) -> Any:
         if option.default is None or option.kind in ("path", "port"):
             return None
         raise ConfigError(f"{where} needs a value (default: {option.default})")
+    if option.kind == "flag":
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where} must be true or false, found {_show(value)}")
+        return value
     if option.kind in ("number", "port"):
         # YAML 1.1 reads 1e3 as a string: accept text that is a number, refuse everything else
         ok_type = isinstance(value, (int, float, str)) and not isinstance(value, bool)
@@ -274,6 +295,11 @@ def check(settings: dict[str, Any], *, demo: bool) -> None:
         raise ConfigError("key 'port' is not set: give --port PATH (or port: in the config), or try --demo")
     if settings["protocol"] == "ascii" and settings["axis"] != "z":
         raise ConfigError("key 'axis': protocol ascii carries the z axis only; use axis z")
+    if settings["protocol"] != "kvh-a":
+        for key in KVH_ONLY:
+            if settings[key] != OPTION_BY_KEY[key].default:
+                raise ConfigError(f"key '{key}' sets a KVH unit's output: it applies to protocol kvh-a only, "
+                                  f"not {settings['protocol']}")  # fmt: skip
     model = settings["model"]
     try:
         os.stat(model)

@@ -32,13 +32,15 @@ from typing import Callable
 import numpy as np
 
 from fogd import __version__
-from fogd.core.compensator import Compensator
+from fogd.core.channels import ChannelCompensator, ChannelModels
+from fogd.core.compensator import Compensated
 from fogd.core.estimator import SCALAR_CHUNK
 from fogd.core.flags import Flag, describe
 from fogd.core.frozen import FrozenModel
 from fogd.core.modelfile import check_rate, printable
-from fogd.errors import FogdError
+from fogd.errors import ConfigError, FogdError
 from fogd.protocols.base import Frame
+from fogd.serving.channels import ChannelPlan, as_models, method, plan
 from fogd.serving.outputs import Chunk, Formatter, OutputBatch, Writer, split_batch
 from fogd.serving.reader import Reader
 from fogd.serving.ring import RATE_KINDS, TEMP_KINDS, Ring
@@ -81,6 +83,22 @@ class RateSamples:
     temp_age_s: list[float]  # how long before the frame that temperature arrived
 
 
+@dataclass
+class ChannelSamples:
+    """The rate frames of a batch for the channel compensator: per channel its values and usability (lists,
+    one entry per rate frame), and the columns every channel shares."""
+
+    rows: list[int]
+    values: list[list[float]]  # per compensated channel
+    usable: list[list[bool]]  # per compensated channel: present and valid in the frame
+    device_s: list[float | None]
+    temp_c: list[float]
+    temp_age_s: list[float]
+
+
+_NAN = float("nan")
+
+
 class TemperatureHold:
     """Each rate frame's temperature: the newest one that arrived at or before it, carried across batches, and
     its age in receive time (a rate sample with no temperature since the start ages from the start)."""
@@ -103,6 +121,37 @@ class TemperatureHold:
                 rows.append(index)
                 rates.append(frame.rate_dph[axis])
                 usable.append(frame.axis_valid[axis] and frame.axis_present[axis])
+                device_s.append(frame.t_s)
+                temps_c.append(held_c)
+                ages_s.append(t_rx_s[index] - held_rx_s)
+        self.temp_c, self.rx_s = held_c, held_rx_s
+        return samples
+
+    def channel_samples(self, frames: list[Frame], t_rx_s: list[float], sources: tuple[tuple[bool, int], ...]) -> ChannelSamples:
+        """`rate_samples` for several channels: `sources` says where each is in a frame ((accelerometer?, axis));
+        an accelerometer a frame lacks (a fogd rate frame) is NaN and unusable."""
+        values: list[list[float]] = [[] for _ in sources]
+        usable: list[list[bool]] = [[] for _ in sources]
+        samples = ChannelSamples([], values, usable, [], [], [])
+        rows, device_s, temps_c, ages_s = samples.rows, samples.device_s, samples.temp_c, samples.temp_age_s
+        held_c, held_rx_s = self.temp_c, self.rx_s
+        columns = [(accel, axis, value, ok) for (accel, axis), value, ok in zip(sources, values, usable)]
+        for index, frame in enumerate(frames):
+            kind = frame.kind
+            if kind in TEMP_KINDS and frame.temp_c is not None:
+                held_c, held_rx_s = frame.temp_c, t_rx_s[index]
+            if kind in RATE_KINDS:
+                rows.append(index)
+                for accel, axis, value, ok in columns:
+                    if not accel:
+                        value.append(frame.rate_dph[axis])
+                        ok.append(frame.axis_valid[axis] and frame.axis_present[axis])
+                    elif frame.accel_g is None:
+                        value.append(_NAN)
+                        ok.append(False)
+                    else:
+                        value.append(frame.accel_g[axis])
+                        ok.append(frame.accel_valid[axis] and frame.accel_present[axis])
                 device_s.append(frame.t_s)
                 temps_c.append(held_c)
                 ages_s.append(t_rx_s[index] - held_rx_s)
@@ -141,10 +190,10 @@ class LoopCounters:
 class Reload:
     """What a SIGHUP may change without a restart (validated before the daemon sees it)."""
 
-    model: FrozenModel
+    model: FrozenModel | ChannelModels
     temp_stale_s: float
     status_interval_s: float
-    compensator: Compensator | None = None  # built by the reload thread, so a swap allocates nothing
+    compensator: ChannelCompensator | None = None  # built by the reload thread, so a swap allocates nothing
 
 
 @dataclass
@@ -165,6 +214,7 @@ class Latest:
     temp_c: float = float("nan")
     temp_rate_cps: float = float("nan")
     flags: int = 0
+    channels: dict[str, dict[str, float]] | None = None  # a multi-channel model: each channel's comp and flags
 
 
 class Daemon:
@@ -176,9 +226,10 @@ class Daemon:
         reader: Reader,
         writer: Writer,
         formatter: Formatter,
-        model: FrozenModel,
+        model: FrozenModel | ChannelModels,
         rate_hz: float,
         axis: int,
+        channels: ChannelPlan | None = None,
         temp_stale_s: float,
         status_interval_s: float,
         duration_s: float | None = None,
@@ -190,11 +241,14 @@ class Daemon:
         self.reader = reader
         self.writer = writer
         self.formatter = formatter
+        models = as_models(model)
+        self.plan = channels or plan(models, formatter.protocol, axis)
         self.model = model
-        check_rate(model, rate_hz, model.name)  # before a window's buffers are allocated
-        self.compensator = Compensator(model, rate_hz)
+        self.models = models
+        self.compensator = self._compensator(models, rate_hz)
         self.rate_hz = rate_hz
         self.axis = axis
+        self._names = self.plan.covered
         self.temp_stale_s = temp_stale_s
         self.status_interval_s = status_interval_s
         self.duration_s = duration_s
@@ -217,6 +271,13 @@ class Daemon:
         self._encode_error_logged = False
         self._reload_started_s = 0.0
         self.history: deque[tuple[float, ...]] = deque(maxlen=HISTORY_POINTS)
+
+    def _compensator(self, models: ChannelModels, rate_hz: float) -> ChannelCompensator:
+        """The one compensator of every covered channel, as fogd-replay builds it; each model's window is
+        checked against the rate before its buffers are allocated."""
+        for channel in self.plan.covered:
+            check_rate(models[channel], rate_hz, models[channel].name)
+        return ChannelCompensator({channel: models[channel] for channel in self.plan.covered}, rate_hz)
 
     @property
     def ring(self) -> Ring:
@@ -340,8 +401,11 @@ class Daemon:
         me = threading.current_thread()
         try:
             prepared = self._reload()
-            check_rate(prepared.model, self.rate_hz, prepared.model.name)
-            compensator = Compensator(prepared.model, self.rate_hz)  # allocated here, off the data path
+            models = as_models(prepared.model)
+            if plan(models, self.formatter.protocol, self.axis).covered != self.plan.covered:
+                raise ConfigError(f"model {models.name} compensates {', '.join(models)}, the running one "
+                                  f"{', '.join(self.plan.covered)}; restart fogd to change channels")  # fmt: skip
+            compensator = self._compensator(models, self.rate_hz)  # allocated here, off the data path
         except FogdError as error:
             self.counters.reloads_refused += 1
             log.error("reload refused: %s; keeping model %s", printable(str(error)), printable(self.model.name))
@@ -357,17 +421,13 @@ class Daemon:
         """Use a validated reload from the next batch on."""
         self.temp_stale_s = reload.temp_stale_s
         self.status_interval_s = reload.status_interval_s
-        old, model = self.compensator, reload.model
-        new = reload.compensator or Compensator(model, self.rate_hz)
-        kept = model.inputs == old.model.inputs
-        if kept:
-            # compensator.py has no public hand-over of its state: carry the estimator bank and held temperature
-            new.bank = old.bank
-            new._held_temp_c = old._held_temp_c
-        self.compensator, self.model = new, model
+        model, models = reload.model, as_models(reload.model)
+        new = reload.compensator or self._compensator(models, self.rate_hz)
+        kept = _carry_state(self.compensator, new)
+        self.compensator, self.model, self.models = new, model, models
         self.counters.reloads += 1
         log.warning(
-            "reloaded: model %s (%s); estimator state %s", printable(model.name), model.method,
+            "reloaded: model %s (%s); estimator state %s", printable(model.name), method(models),
             "kept (same inputs)" if kept else "reset (inputs differ): warm-up again",
         )  # fmt: skip
 
@@ -411,18 +471,25 @@ class Daemon:
             self._encode_error_logged = True
 
     def compensate(self, frames: list[Frame], t_rx_s: list[float]) -> OutputBatch:
-        """One compensator call for every rate sample in `frames` (received at `t_rx_s`)."""
-        samples = self.temperature.rate_samples(frames, t_rx_s, self.axis)
-        rows, rates, usable, temp_c = samples.rows, samples.rate_dph, samples.usable, samples.temp_c
+        """One channel-compensator call for every rate sample in `frames` (received at `t_rx_s`), every
+        covered channel at once."""
+        samples = self.temperature.channel_samples(frames, t_rx_s, self.plan.sources)
+        rows, temp_c, names = samples.rows, samples.temp_c, self._names
         stale_s = self.temp_stale_s
         stale = [age_s > stale_s for age_s in samples.temp_age_s]
         if len(rows) <= SCALAR_CHUNK:  # a frame or two at real rates: no numpy on the way in
-            comp = self.compensator.process_few(rates, temp_c, usable, stale)
+            comps = self.compensator.process_few(dict(zip(names, samples.values)), temp_c,
+                                                 dict(zip(names, samples.usable)), stale)  # fmt: skip
         else:
-            comp = self.compensator.process(np.array(rates, dtype=np.float64), np.array(temp_c, dtype=np.float64),
-                                            rate_valid=np.array(usable, dtype=bool), temp_stale=np.array(stale, dtype=bool))  # fmt: skip
+            comps = self.compensator.process(
+                {name: np.array(values, dtype=np.float64) for name, values in zip(names, samples.values)},
+                np.array(temp_c, dtype=np.float64),
+                rate_valid={name: np.array(ok, dtype=bool) for name, ok in zip(names, samples.usable)},
+                temp_stale=np.array(stale, dtype=bool),
+            )  # fmt: skip
+        comp = comps[names[0]]
         self.counters.samples_compensated += len(rows)
-        self._count_domain(comp.flags)
+        self._count_domain(comp.flags if len(names) == 1 else _any_flags(comps.values()))
         if frames:
             latency_s = time.monotonic() - t_rx_s[0]  # the oldest frame waited longest
             self.latency.last_s = latency_s
@@ -430,11 +497,14 @@ class Daemon:
                 self.latency.max_s = latency_s
         if rows:
             self.latest = Latest(
-                rates[-1], float(comp.comp_dph[-1]), float(comp.rate_comp_dph[-1]), float(comp.temp_c[-1]),
+                samples.values[0][-1], float(comp.comp_dph[-1]), float(comp.rate_comp_dph[-1]), float(comp.temp_c[-1]),
                 float(comp.temp_rate_cps[-1]), int(comp.flags[-1]),
+                None if self.plan.single else {name: {"comp": float(one.comp_dph[-1]), "flags": int(one.flags[-1])}
+                                               for name, one in comps.items()},
             )  # fmt: skip
         times = self.clock.times(samples.device_s)
-        return OutputBatch(frames, rows, times if len(rows) <= SCALAR_CHUNK else np.array(times, dtype=np.float64), comp)
+        t_s = times if len(rows) <= SCALAR_CHUNK else np.array(times, dtype=np.float64)
+        return OutputBatch(frames, rows, t_s, comp, None if self.plan.single else comps)
 
     def _count_domain(self, flags: np.ndarray | list[int]) -> None:
         """Running counts of the samples flagged OUT_OF_DOMAIN and CLAMPED."""
@@ -485,10 +555,22 @@ class Daemon:
             f"ring overruns {self.ring.overruns} | reconnects {reader.reconnects}"
             f"{f' (about {reader.disconnected_s * self.rate_hz:.0f} frames lost unplugged)' if reader.disconnects else ''} | "
             f"latency {1e3 * self.latency.last_s:.1f} ms (max {1e3 * self.latency.max_s:.1f}) | "
-            f"T {latest.temp_c:.2f} C dT/dt {latest.temp_rate_cps:+.5f} C/s comp {latest.comp_dph:+.4f} deg/h "
-            f"({describe(latest.flags)}) | {_shares_text(self.domain_shares())} | model {printable(self.model.name)} | "
-            f"fogd {__version__}"
+            f"T {latest.temp_c:.2f} C dT/dt {latest.temp_rate_cps:+.5f} C/s {self._comp_text()} | "
+            f"{_shares_text(self.domain_shares())} | model {printable(self.model.name)} | fogd {__version__}"
         )
+
+    def _comp_text(self) -> str:
+        """'comp +0.0123 deg/h (flags)', or with a multi-channel model each channel's, and those passed through."""
+        latest = self.latest
+        if latest.channels is None:
+            if not self.plan.single:  # nothing compensated yet
+                return f"comp - ({', '.join(self.plan.covered)}{self._passed_text()})"
+            return f"comp {latest.comp_dph:+.4f} deg/h ({describe(latest.flags)})"
+        parts = [f"{name} {one['comp']:+.6g} ({describe(int(one['flags']))})" for name, one in latest.channels.items()]
+        return f"comp {' '.join(parts)}{self._passed_text()}"
+
+    def _passed_text(self) -> str:
+        return f"; passed through: {', '.join(self.plan.passed)}" if self.plan.passed else ""
 
     def short_status(self) -> str:
         """One short line for systemd's STATUS= (shown by systemctl status)."""
@@ -510,7 +592,8 @@ class Daemon:
             "time_unix_s": time.time(),
             "uptime_s": now_s - self.started_s,
             "connected": bool(getattr(self.reader, "connected", True)),
-            "model": {"name": self.model.name, "method": self.model.method},
+            "model": {"name": self.model.name, "method": method(self.models)},
+            "channels": {"compensated": list(self.plan.covered), "passed": list(self.plan.passed)},
             "latest": asdict(self.latest),
             "latency_s": {"last": self.latency.last_s, "max_since_status": self.latency.max_s},
             "counters": self.counters_dict(),
@@ -559,6 +642,36 @@ class Daemon:
             "in": frames_in, "out": writer.frames_written, "used_as_input": used, "dropped": dropped,
             "pending": pending, "adds_up": frames_in == writer.frames_written + used + sum(dropped.values()) + sum(pending.values()),
         }  # fmt: skip
+
+
+def _any_flags(comps) -> list[int] | np.ndarray:
+    """Each sample's flags of every channel together (a sample is out of domain if any channel is)."""
+    columns = [comp.flags for comp in comps]
+    if isinstance(columns[0], list):
+        return [_or(values) for values in zip(*columns)]
+    return np.bitwise_or.reduce(np.stack(columns), axis=0)
+
+
+def _or(values: tuple[int, ...]) -> int:
+    result = 0
+    for value in values:
+        result |= value
+    return result
+
+
+def _carry_state(old: ChannelCompensator, new: ChannelCompensator) -> bool:
+    """Hand the estimator banks and held temperatures over when every channel keeps its inputs (the same
+    channels with the same input configurations group into the same banks); False when they differ."""
+    if new.channels != old.channels or any(
+        new.compensators[channel].model.inputs != old.compensators[channel].model.inputs for channel in new.channels
+    ):
+        return False
+    # core.channels has no public hand-over of its state: carry each shared bank and each held temperature
+    for inputs, shared in new._banks.items():
+        shared.bank = old._banks[inputs].bank
+    for channel, compensator in new.compensators.items():
+        compensator._held_temp_c = old.compensators[channel]._held_temp_c
+    return True
 
 
 def _shares_text(shares: dict[str, float]) -> str:

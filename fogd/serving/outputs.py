@@ -29,12 +29,15 @@ from pathlib import Path
 import numpy as np
 import serial
 
-from fogd.core.columns import OUTPUT_FORMATS
+from fogd.core.channels import output_columns
+from fogd.core.columns import ACCEL_CHANNELS, CHANNELS, GYRO_CHANNELS, OUTPUT_FORMATS
 from fogd.core.compensator import Compensated
 from fogd.errors import DeviceError, describe_os_error
 from fogd.protocols import Protocol
 from fogd.protocols.base import Frame
-from fogd.protocols.fogdbin import SEQ_MODULUS, FogdProtocol
+from fogd.protocols.base import NAN
+from fogd.protocols.fogdbin import SEQ_MODULUS, CompImu, FogdProtocol, encode_comp_imu
+from fogd.serving.channels import ChannelPlan
 from fogd.serving.ring import RATE_KINDS
 from fogd.serving.serialio import describe_open_error
 
@@ -55,7 +58,8 @@ class OutputBatch:
     frames: list[Frame]  # as the lexer decoded them, in arrival order
     rate_rows: list[int]  # indices of the frames that carry a rate
     t_s: np.ndarray | list[float]  # output time of each rate row
-    comp: Compensated  # the compensated axis, per rate row
+    comp: Compensated  # the compensated axis (a multi-channel model: its first channel), per rate row
+    channels: dict[str, Compensated] | None = None  # a multi-channel model: every compensated channel
 
 
 @dataclass
@@ -68,21 +72,28 @@ class Chunk:
 
 
 class Formatter:
-    """Encodes compensated batches in one output format; `axis` is the compensated gyro axis (0..2)."""
+    """Encodes compensated batches in one output format; `axis` is the compensated gyro axis (0..2) of a
+    single-channel model, `channels` the plan of a multi-channel one (every covered channel in each frame)."""
 
-    def __init__(self, out_format: str, protocol: Protocol, axis: int) -> None:
+    def __init__(self, out_format: str, protocol: Protocol, axis: int, channels: ChannelPlan | None = None) -> None:
         if out_format not in OUT_FORMATS:
             raise ValueError(f"unknown output format {out_format!r}")
         self.out_format = out_format
         self.protocol = protocol
         self.axis = axis
+        self.plan = channels if channels is not None and not channels.single else None
         self._fogd_protocol = FogdProtocol()
         self._seq = 0
-        self._pieces = getattr(self, f"_{out_format}")
+        self._pieces = getattr(self, f"_{out_format}" if self.plan is None else f"_{out_format}_channels")
+        if self.plan is not None:
+            self._columns, self._row_format = _channel_columns(self.plan)
+            self._accel = bool(self.plan.accel_axes)
 
     def header(self) -> bytes:
         """What goes to the sink before any frame (the CSV header line)."""
-        return (",".join(CSV_COLUMNS) + "\n").encode() if self.out_format == "csv" else b""
+        if self.out_format != "csv":
+            return b""
+        return (",".join(CSV_COLUMNS if self.plan is None else self._columns) + "\n").encode()
 
     def encode(self, batch: OutputBatch) -> Chunk:
         pieces = self._pieces(batch)
@@ -155,6 +166,134 @@ class Formatter:
         ]
 
 
+    def _channel_columns(self, batch: OutputBatch) -> list[tuple[bool, int, str | None, list, list, list]]:
+        """Per carried channel: (accelerometer?, axis, name if compensated, comp, compensated, flags)."""
+        channels = batch.channels or {}
+        columns = []
+        for name in self.plan.carried:
+            accel, axis = name in ACCEL_CHANNELS, _axis(name)
+            comp = channels.get(name)
+            if comp is None:
+                columns.append((accel, axis, None, [], [], []))
+            else:
+                columns.append((accel, axis, name, _values(comp.comp_dph), _values(comp.rate_comp_dph), _values(comp.flags)))
+        return columns
+
+    def _channel_rows(self, batch: OutputBatch) -> list[tuple]:
+        """One tuple per rate sample: t_s, temp_c, temp_rate_cps, then per carried channel its reading and,
+        if compensated, its compensation, compensated reading and flags."""
+        columns = self._channel_columns(batch)
+        comp, frames = batch.comp, batch.frames
+        rows = []
+        for j, (row, t_s, temp_c, temp_rate_cps) in enumerate(
+            zip(batch.rate_rows, _values(batch.t_s), _values(comp.temp_c), _values(comp.temp_rate_cps))
+        ):
+            frame = frames[row]
+            values: list = [t_s, temp_c, temp_rate_cps]
+            for accel, axis, name, comps, compensated, flags in columns:
+                values.append(_reading(frame, accel, axis))
+                if name is not None:
+                    values += (comps[j], compensated[j], flags[j])
+            rows.append(tuple(values))
+        return rows
+
+    def _same_channels(self, batch: OutputBatch) -> list[bytes]:
+        """Every input frame, rate frames re-encoded with every compensated channel and a fresh CRC."""
+        position = {row: j for j, row in enumerate(batch.rate_rows)}
+        channels = batch.channels or {}
+        compensated = [(accel, axis, _values(channels[name].rate_comp_dph))
+                       for name, (accel, axis) in zip(self.plan.covered, self.plan.sources)]  # fmt: skip
+        reencode, with_accel = self.protocol.reencode, self._accel
+        pieces = []
+        for index, frame in enumerate(batch.frames):
+            j = position.get(index)
+            if j is None:
+                pieces.append(frame.raw)
+                continue
+            rates = list(frame.rate_dph)
+            accels = list(frame.accel_g) if frame.accel_g is not None else None
+            for accel, axis, values in compensated:
+                if not accel:
+                    rates[axis] = values[j]
+                elif accels is not None:
+                    accels[axis] = values[j]
+            pieces.append(reencode(frame, rates, accels) if with_accel else reencode(frame, rates))
+        return pieces
+
+    def _csv_channels(self, batch: OutputBatch) -> list[bytes]:
+        """fogd-replay's multi-channel columns and number formats, one row per rate sample."""
+        fmt = self._row_format
+        return [(fmt % (row[:2] + row[3:])).encode() for row in self._channel_rows(batch)]
+
+    def _jsonl_channels(self, batch: OutputBatch) -> list[bytes]:
+        """One JSON object per rate sample: the CSV's names (and temp_rate_cps), null for NaN/Inf."""
+        names = ("t_s", "temp_c", "temp_rate_cps", *self._columns[2:])
+        flag_names = {name for name in names if name.startswith("flags_")}
+        return [
+            ("{" + ",".join(f'"{name}":{value if name in flag_names else _json(value)}' for name, value in zip(names, row))
+             + "}\n").encode()
+            for row in self._channel_rows(batch)
+        ]  # fmt: skip
+
+    def _fogd_channels(self, batch: OutputBatch) -> list[bytes]:
+        """One fogd compensated-IMU frame (type 05) per rate sample: six channels, each with its flags."""
+        channels = batch.channels or {}
+        comp = batch.comp
+        covered = [(name in ACCEL_CHANNELS, _axis(name), name in channels) for name in CHANNELS]
+        per_channel = {name: (_values(one.comp_dph), _values(one.rate_comp_dph), _values(one.flags))
+                       for name, one in channels.items()}  # fmt: skip
+        pieces = []
+        for j, (row, t_s, temp_c, temp_rate_cps) in enumerate(
+            zip(batch.rate_rows, _values(batch.t_s), _values(comp.temp_c), _values(comp.temp_rate_cps))
+        ):
+            frame = batch.frames[row]
+            comps, compensated, flags = [0.0] * 6, [], [0] * 6
+            for i, name in enumerate(CHANNELS):
+                accel, axis, done = covered[i]
+                reading = _reading(frame, accel, axis)
+                if done:
+                    values = per_channel[name]
+                    comps[i], flags[i] = values[0][j], values[2][j]
+                    compensated.append(values[1][j])
+                else:
+                    compensated.append(reading)
+            record = CompImu(
+                seq=self._seq, t_s=max(t_s, 0.0),
+                rate_dph=tuple(frame.rate_dph), accel_g=frame.accel_g if frame.accel_g is not None else (NAN, NAN, NAN),
+                axis_valid=frame.axis_valid, axis_present=frame.axis_present,
+                accel_valid=frame.accel_valid, accel_present=frame.accel_present,
+                comp=tuple(comps), compensated=tuple(compensated), covered=tuple(done for _, _, done in covered),
+                temp_c=temp_c, temp_rate_cps=temp_rate_cps, flags=tuple(flags),
+            )  # fmt: skip
+            pieces.append(encode_comp_imu(record))
+            self._seq = (self._seq + 1) % SEQ_MODULUS
+        return pieces
+
+
+def _reading(frame: Frame, accel: bool, axis: int) -> float:
+    """A channel's value in a frame as decoded (NaN for an accelerometer the frame does not carry)."""
+    if not accel:
+        return frame.rate_dph[axis]
+    return frame.accel_g[axis] if frame.accel_g is not None else NAN
+
+
+def _axis(channel: str) -> int:
+    return GYRO_CHANNELS.index(channel) if channel in GYRO_CHANNELS else ACCEL_CHANNELS.index(channel)
+
+
+def _channel_columns(plan: ChannelPlan) -> tuple[list[str], str]:
+    """fogd-replay's multi-channel CSV columns (t_s, temp_c, each carried channel, then for a compensated
+    one output_columns(channel)) and the row's printf format."""
+    names, formats = ["t_s", "temp_c"], [OUTPUT_FORMATS["t_s"], OUTPUT_FORMATS["temp_c"]]
+    for channel in plan.carried:
+        names.append(channel)
+        formats.append("%.9g")
+        if channel in plan.covered:
+            names += output_columns(channel)
+            formats += ["%.9g", "%.9g", OUTPUT_FORMATS["flags"]]
+    return names, ",".join(formats) + "\n"
+
+
 def _values(column: np.ndarray | list) -> list:
     """A column as Python numbers (the daemon's few-frame batches are lists already)."""
     return column if isinstance(column, list) else column.tolist()
@@ -167,17 +306,18 @@ def _json(value: float) -> str:
 def split_batch(batch: OutputBatch) -> list[OutputBatch]:
     """The batch as one batch per frame (the slow path that isolates a frame no format can encode)."""
     position = {row: j for j, row in enumerate(batch.rate_rows)}
-    comp = batch.comp
     batches = []
     for i, frame in enumerate(batch.frames):
         j = position.get(i)
         rows = slice(j, j + 1) if j is not None else slice(0, 0)
-        batches.append(OutputBatch(
-            [frame], [0] if j is not None else [], batch.t_s[rows],
-            Compensated(comp.temp_c[rows], comp.temp_rate_cps[rows], comp.comp_dph[rows], comp.rate_comp_dph[rows],
-                        comp.flags[rows]),
-        ))  # fmt: skip
+        channels = None if batch.channels is None else {name: _rows(one, rows) for name, one in batch.channels.items()}
+        batches.append(OutputBatch([frame], [0] if j is not None else [], batch.t_s[rows], _rows(batch.comp, rows), channels))
     return batches
+
+
+def _rows(comp: Compensated, rows: slice) -> Compensated:
+    return Compensated(comp.temp_c[rows], comp.temp_rate_cps[rows], comp.comp_dph[rows], comp.rate_comp_dph[rows],
+                       comp.flags[rows])  # fmt: skip
 
 
 def rate_rows(frames: list[Frame]) -> list[int]:
