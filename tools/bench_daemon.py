@@ -2,12 +2,13 @@
 
 A harness writes KVH Format A frames (sequence 0..127, valid z rate, whole-degree temperature) to the master
 of one pty, whose slave is the process's --port, and reads the process's output from the master of another
-pty, whose slave is its --out (fogd: --protocol kvh-a --out-format same, one compensated axis: three-axis
-compensation is issue 12). One select() loop does both, so writing and reading timestamps share one clock.
-Four processes in one run: fogd with the bundled demo model (the paper's inputs), fogd with fogd-train's
-default lag-bank model (fitted here on a simulated run with a small swarm), the relay, and the relay split
-over two Python threads as fogd splits its work (the floor of that design before any work is done).
-Targets are issue 13's, for one axis.
+pty, whose slave is its --out (fogd: --protocol kvh-a --out-format same). One select() loop does both, so
+writing and reading timestamps share one clock. Five processes in one run: fogd with the bundled demo model
+(the paper's inputs), fogd with fogd-train's default lag-bank model (fitted here on a simulated run with a
+small swarm) on one axis, fogd with that model on all six channels of the IMU frames (a version-3 file, as
+fogd-train writes for an IMU), the relay, and the relay split over two Python threads as fogd splits its
+work (the floor of that design before any work is done). Targets are issue 13's, for one axis, and issue
+12's for six channels: (i) throughput and latency within 1.5x of the one-channel figures of the same run.
   (a) throughput: the rate steps up (5k .. 80k frames/s, a few seconds each); loss = frames written - frames
       read back once the output has gone quiet, plus sequence breaks in what came back. The highest step
       reached (>= 95% of the asked rate) with zero loss is the maximum sustained rate. Target >= 50,000/s.
@@ -66,7 +67,7 @@ DEMO_MODEL = Path(__file__).resolve().parent.parent / "fogd" / "data" / "demo-mo
 RELAY = Path(__file__).resolve().parent / "bench_relay.py"
 PROTOTYPE = Path(__file__).resolve().parent / "bench_loop_prototype.py"
 CPU_RATES = (200.0, 1000.0, 5000.0)
-# issue 13's targets, one compensated axis (three-axis compensation, issue 12, is not built yet)
+# issue 13's targets, one compensated axis
 TARGET_RATE = 50_000
 TARGET_CPU_1000 = 0.06  # of a core
 TARGET_CPU_5000 = 0.20
@@ -74,6 +75,8 @@ TARGET_P99_RATIO = 2.0  # x the relay's, at 1,000 frames/s
 TARGET_P50_RATIO = 3.0
 TARGET_RSS_MB = 60.0
 THREADS = "two threads, no work"  # bench_relay.py --threads: the floor of a reader thread handing reads over
+SIX = "fogd, six channels (lag-bank)"
+TARGET_SIX_RATIO = 1.5  # issue 12: throughput and latency with six channels within 1.5x of one channel's
 
 
 def frame_cycle() -> bytes:
@@ -329,16 +332,26 @@ def measure_handover(model: str, latency_s: float) -> list[str]:
 
 def lag_bank_model(path: Path) -> str:
     """fogd-train's default model (PSO-SVR, coil trend, the sensor's temperature and five lags), fitted with a
-    small swarm on a simulated run: the shape and size (about a hundred support vectors) an operator runs."""
+    small swarm on a simulated run: the shape and size (about a hundred support vectors) an operator runs.
+    Beside it, PATH-imu.json: the same model for each of an IMU's six channels (a version-3 file, as fogd-train
+    writes for an IMU: every channel its own model on the same inputs, so one input bank serves them all)."""
     from bench_common import sim_run, trained_model
 
     from fogd.core import modelfile
+    from fogd.core.columns import CHANNELS
     from fogd.core.inputs import DEFAULT_INPUTS_TEXT
 
     trained = trained_model(sim_run("paper-train", 2.0), "pso-svr", particles=8, iterations=5, trend="coil",
                             inputs=DEFAULT_INPUTS_TEXT)  # fmt: skip
     modelfile.save(path, trained.document)
+    imu = modelfile.channels_document(name="bench-imu", documents={channel: trained.document for channel in CHANNELS},
+                                      created_utc=trained.document["created_utc"])  # fmt: skip
+    modelfile.save(six_channel_path(path), imu)
     return str(path)
+
+
+def six_channel_path(path: Path) -> Path:
+    return path.with_name(f"{path.stem}-imu.json")
 
 
 def relay_command(port: str, out: str) -> list[str]:
@@ -423,11 +436,16 @@ def stage_costs(model_path: str, batch_frames: int, calls: int) -> list[list[obj
     from fogd.serving.reader import READ_MAX_BYTES
     from fogd.serving.ring import Ring
 
-    protocol = KvhProtocol(comp_axes=(2,))
+    from fogd.serving.channels import as_models, plan
+
+    models = modelfile.load_channels(model_path)
+    model = models if models.version == modelfile.CHANNELS_VERSION else models["rate_dph"]
+    chosen = plan(as_models(model), KvhProtocol(), 2)
+    protocol = KvhProtocol(comp_axes=chosen.gyro_axes, comp_accel_axes=chosen.accel_axes)
     lexer, ring = Lexer(protocol), Ring(1 << 15)
-    daemon = Daemon(reader=SimpleNamespace(ring=ring), writer=None, formatter=None, model=modelfile.load(model_path),
-                    rate_hz=1000.0, axis=2, temp_stale_s=2.0, status_interval_s=3600.0)  # fmt: skip
-    formatter = Formatter("same", protocol, 2)
+    daemon = Daemon(reader=SimpleNamespace(ring=ring), writer=None, formatter=None, model=model, rate_hz=1000.0,
+                    axis=2, channels=chosen, temp_stale_s=2.0, status_interval_s=3600.0)  # fmt: skip
+    formatter = Formatter("same", protocol, 2, chosen)
     cycle = frame_cycle()
     data = (cycle * math.ceil(batch_frames / 128 + 1))[: batch_frames * FRAME_BYTES]
     gyro = Pty()
@@ -435,7 +453,7 @@ def stage_costs(model_path: str, batch_frames: int, calls: int) -> list[list[obj
     poller.register(gyro.slave, select.POLLIN)
     sink = os.open(os.devnull, os.O_WRONLY)
     names = ("syscalls: poll + read", "lexer.feed (decode, CRC)", "ring push + pop", "Daemon.compensate",
-             "  of which Compensator", "Formatter.encode (same: re-encode, CRC)", "syscall: write")  # fmt: skip
+             "  of which ChannelCompensator", "Formatter.encode (same: re-encode, CRC)", "syscall: write")  # fmt: skip
     totals = dict.fromkeys(names, 0.0)
     process = daemon.compensator.process_few if batch_frames <= 16 else daemon.compensator.process
     process_s = [0.0]
@@ -481,6 +499,18 @@ def stage_costs(model_path: str, batch_frames: int, calls: int) -> list[list[obj
     return rows
 
 
+def _demo_imu(model_path: str) -> str:
+    """A version-3 file with `model_path`'s model on each of the six channels (JSON text)."""
+    import json
+
+    from fogd.core import modelfile
+    from fogd.core.columns import CHANNELS
+
+    document = json.loads(Path(model_path).read_text())
+    return json.dumps(modelfile.channels_document(name="bench-imu", documents=dict.fromkeys(CHANNELS, document),
+                                                  created_utc=document["created_utc"]))  # fmt: skip
+
+
 def _mb(value: str) -> float:
     number, _, unit = value.partition(" ")
     return float(number) / 1024.0 if unit == "kB" else float("nan")
@@ -518,9 +548,11 @@ def main(argv: list[str] | None = None) -> int:
           f"{latency_s:g} s of latency at 1000/s, {cpu_s:g} s per CPU rate")  # fmt: skip
     with tempfile.TemporaryDirectory() as scratch:
         lag_model = lag_bank_model(Path(scratch) / "lag-bank.json")
+        imu_model = str(six_channel_path(Path(lag_model)))
         results = {
             "fogd": measure("fogd", fogd_command(args.model), rates, step_s, latency_s, cpu_s),
             "fogd, lag-bank model": measure("fogd, lag-bank model", fogd_command(lag_model), rates, step_s, latency_s, cpu_s),
+            SIX: measure(SIX, fogd_command(imu_model), rates, step_s, latency_s, cpu_s),
             "relay": measure("relay", relay_command, rates, step_s, latency_s, cpu_s),
             THREADS: measure(THREADS, threads_command, rates, step_s, latency_s, cpu_s),
         }
@@ -573,7 +605,7 @@ def main(argv: list[str] | None = None) -> int:
         r = results[label]
         ratios.append([label, *(f"{r['cpu_share'][hz] / relay['cpu_share'][hz]:.1f}x" for hz in CPU_RATES),
                        f"{r['p50'] / relay['p50']:.1f}x", f"{r['p99'] / relay['p99']:.1f}x"])  # fmt: skip
-    print_table("3g. Against the relay in this run (one compensated axis; three axes wait for issue 12)",
+    print_table("3g. Against the relay in this run",
                 ["process", *(f"CPU at {hz:,.0f}/s" for hz in CPU_RATES), "p50", "p99"], ratios)  # fmt: skip
     fogd, lag_bank = results["fogd"], results["fogd, lag-bank model"]
     checks = [
@@ -587,9 +619,33 @@ def main(argv: list[str] | None = None) -> int:
         ("neither scikit-learn nor scipy mapped in the daemon",
          not any(r["sklearn"] or r["scipy"] for label, r in results.items() if label.startswith("fogd"))),
     ]
+    one, six = results["fogd, lag-bank model"], results[SIX]
+    ratio = {
+        "max zero-loss rate (one / six)": one["max_rate"] / six["max_rate"] if six["max_rate"] else math.inf,
+        "p50 latency (six / one)": six["p50"] / one["p50"],
+        "p99 latency (six / one)": six["p99"] / one["p99"],
+        **{f"CPU at {hz:,.0f}/s (six / one)": six["cpu_share"][hz] / one["cpu_share"][hz] for hz in CPU_RATES},
+    }
+    print_table("3i. Six channels (an IMU: three gyros, three accelerometers, each its own lag-bank model) against "
+                "one channel (the same model on z), the same frames, in this run",
+                ["measure", "one channel", "six channels", "ratio"],
+                [["max zero-loss rate/s", f"{one['max_rate']:,.0f}", f"{six['max_rate']:,.0f}",
+                  f"{ratio['max zero-loss rate (one / six)']:.2f}x"],
+                 ["p50 latency us", f"{one['p50']:.0f}", f"{six['p50']:.0f}", f"{ratio['p50 latency (six / one)']:.2f}x"],
+                 ["p99 latency us", f"{one['p99']:.0f}", f"{six['p99']:.0f}", f"{ratio['p99 latency (six / one)']:.2f}x"],
+                 *([f"CPU at {hz:,.0f}/s", f"{100 * one['cpu_share'][hz]:.1f}%", f"{100 * six['cpu_share'][hz]:.1f}%",
+                    f"{ratio[f'CPU at {hz:,.0f}/s (six / one)']:.2f}x"] for hz in CPU_RATES)])  # fmt: skip
+    checks += [(f"six channels: {name} <= {TARGET_SIX_RATIO:g}x", ratio[name] <= TARGET_SIX_RATIO)
+               for name in ("max zero-loss rate (one / six)", "p50 latency (six / one)", "p99 latency (six / one)")]
     for batch in (1, 40):
         print_table(f"3e. Where the daemon's time goes, batches of {batch} frame(s) (in-process, every thread's stages)",
                     ["stage", "us per batch", "us per frame", "share"], stage_costs(args.model, batch, 200 if args.quick else 2000))  # fmt: skip
+    with tempfile.TemporaryDirectory() as scratch:
+        imu = Path(scratch) / "imu.json"
+        imu.write_text(_demo_imu(args.model))
+        for batch in (1, 40):
+            print_table(f"3e'. The same with the model on all six channels, batches of {batch} frame(s)",
+                        ["stage", "us per batch", "us per frame", "share"], stage_costs(str(imu), batch, 200 if args.quick else 2000))  # fmt: skip
     p50, p90, p99 = measure_handover(args.model, latency_s)
     print_table("3f. Inside fogd at 1000 frames/s: read that completed a frame (reader thread) -> its compensation "
                 "(loop thread), us", ["p50", "p90", "p99"], [[p50, p90, p99]])  # fmt: skip
