@@ -1,8 +1,9 @@
 """The README's command blocks run as written after its two set-up commands. Every ```sh block is either run
 here, in a scratch directory where `.venv` is this checkout's venv, with options appended for shorter runs
 (never an edit of the README's text), or skipped for a reason named in SKIPPED; a new block that is neither
-fails. Every command in every block calls fogd's tools through a venv, and the set-up lines are what .ci/run
-runs."""
+fails. A ```shell block is run by the test RUN_ELSEWHERE names for it (and, where a later sh block needs its
+files, here too). Every command in every block calls fogd's tools through a venv, and the set-up lines are what
+.ci/run runs."""
 
 from __future__ import annotations
 
@@ -36,14 +37,20 @@ APPENDED = {
     ".venv/bin/fogd --port /tmp/fog0": "--duration-s 3",
     ".venv/bin/fogd --demo --stats-file": "--duration-s 40",  # outlives fogd-top and --status; then kill %1
     ".venv/bin/fogd-top --stats-file": "--count 6 --ascii",
+    ".venv/bin/fogd --port /tmp/imu0": "--rate-hz 2 --duration-s 4",  # the IMU runs below are simulated at 2 Hz
 }
+# a line of a ```shell block -> the test that runs that block (with shorter runs)
+RUN_ELSEWHERE = {
+    "fogd-train imu-cal.csv": ("tests/test_cli_channels.py", "test_the_readmes_three_axis_block_runs_as_written"),
+}
+IMU_SHORTER = {".venv/bin/fogd-sim": "--rate-hz 2", ".venv/bin/fogd-train": "--particles 4 --iterations 2 -q"}
 SEPARATORS = re.compile(r"(\s+#.*$|\s*&&\s*|\s*;\s*|\s+&(?=\s|$)\s*|\s*\|\s*)")
 TOOLS = re.compile(r"^(fogd[\w-]*|python3?|pip3?|pytest)(\s|$)")
 
 
-def sh_blocks() -> list[str]:
+def sh_blocks(fence: str = "sh") -> list[str]:
     text = (ROOT / "README.md").read_text()
-    return [match.group(1) for match in re.finditer(r"^```sh\n(.*?)^```", text, flags=re.S | re.M)]
+    return [match.group(1) for match in re.finditer(rf"^```{fence}\n(.*?)^```", text, flags=re.S | re.M)]
 
 
 def append_options(line: str, options: dict[str, str]) -> str:
@@ -103,7 +110,15 @@ def test_every_block_is_run_or_skipped_for_a_reason_and_calls_the_venvs_tools():
     skipped = [block for block in blocks if any(key in block for key in SKIPPED)]
     assert len(skipped) == len(SKIPPED), "a SKIPPED entry matches no block (or two): update the test with the README"
     ran = [block for block in blocks[1:] if block not in skipped]
-    assert len(ran) == 3, "a new README block: run it in a test here, or skip it for a reason in SKIPPED"
+    assert len(ran) == 4, "a new README block: run it in a test here, or skip it for a reason in SKIPPED"
+    for block in sh_blocks("shell"):
+        runners = [runner for line, runner in RUN_ELSEWHERE.items() if line in block]
+        assert len(runners) == 1, f"a ```shell block no test runs (name it in RUN_ELSEWHERE): {block[:80]!r}"
+        path, name = runners[0]
+        assert f"def {name}(" in (ROOT / path).read_text(), f"{path} has no test {name}"
+        for line in block.splitlines():
+            command = line.partition("  #")[0].strip()
+            assert command.startswith(".venv/bin/"), f"not through a venv: {line!r}"
 
 
 def test_set_up_lines_are_what_ci_runs():
@@ -124,7 +139,7 @@ def test_the_demo_runs_and_says_what_its_columns_mean(scratch):
 
 def test_calibration_live_and_watch_blocks_run_as_written(scratch):
     blocks = [block for block in sh_blocks()[1:] if not any(key in block for key in SKIPPED)]
-    calibration, live, watch = blocks
+    calibration, live, watch, _ = blocks
 
     result = run_block(calibration, scratch)
     assert result.returncode == 0, result.stderr[-3000:]
@@ -148,6 +163,24 @@ def test_calibration_live_and_watch_blocks_run_as_written(scratch):
     assert "\x1b" not in result.stdout  # a pipe gets plain frames
 
 
+def test_the_three_axis_imu_daemon_block_runs_after_its_training_block(scratch):
+    """The IMU section's training (```shell, shorter runs as tests/test_cli_channels.py makes them) then its sh
+    block: the emulated IMU through fogd, which writes fogd-replay's six-channel columns."""
+    section = (ROOT / "README.md").read_text().split("## Calibrating a three-axis IMU", 1)[1].split("\n## ", 1)[0]
+    training = re.search(r"^```shell\n(.*?)^```", section, flags=re.S | re.M).group(1)
+    daemon = re.search(r"^```sh\n(.*?)^```", section, flags=re.S | re.M).group(1)
+    assert daemon in sh_blocks()
+    shorter = "\n".join(append_options(line.partition("  #")[0].rstrip(), IMU_SHORTER) for line in training.splitlines())
+    result = run_block(shorter, scratch, timeout_s=600)
+    assert result.returncode == 0, result.stderr[-3000:]
+    result = run_block(daemon, scratch)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "6 channels" in result.stderr and "passes through" not in result.stderr, result.stderr[-3000:]
+    live = (scratch / "imu-live.csv").read_text().splitlines()
+    assert live[0] == (scratch / "imu-compensated.csv").read_text().split("\n", 1)[0]
+    assert len(live) > 100 and sum(name.startswith("flags_") for name in live[0].split(",")) == 6
+
+
 def fogd_option_table() -> dict[str, str]:
     """The README's fogd option table: option name -> default cell."""
     text = (ROOT / "README.md").read_text()
@@ -165,7 +198,9 @@ def test_fogd_defaults_agree_in_the_readme_help_and_config():
         cell = table.get(option.key.replace("_", "-"))
         assert cell is not None, f"--{option.key.replace('_', '-')} is not in the README's option table"
         help_text = helps[option.key] % {"default": option.default}
-        if option.default is None:
+        if option.kind == "flag":  # true/false in the config, --NAME / --no-NAME on the command line
+            assert cell == ("on" if option.default else "off") and f"default: {cell}" in help_text, (option.key, cell)
+        elif option.default is None:
             assert cell in ("(required)", "none", "off"), (option.key, cell)
             assert "default" not in help_text or re.search(r"default: (off|run until)", help_text) or "required" in help_text
         elif option.key == "out":
