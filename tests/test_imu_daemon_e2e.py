@@ -204,8 +204,8 @@ def test_jsonl_output_names_every_channel_as_the_csv_does(tmp_path, models):
 
 @pytest.mark.parametrize("units", list(UNITS))
 def test_the_units_settings_are_queried_at_start_and_agree(tmp_path, models, units):
-    _, out, stderr = through_fogd(tmp_path, models["all"], UNITS[units],
-                                  [*UNITS[units], "--query-settings", "--out-format", "csv"], rows(100))  # fmt: skip
+    _, _, stderr = through_fogd(tmp_path, models["all"], UNITS[units],
+                                [*UNITS[units], "--query-settings", "--out-format", "csv"], rows(100))  # fmt: skip
     rotfmt = "delta" if units == "delta" else "rate"
     assert f"unit settings on {tmp_path / 'imu0'} agree with the config: rotfmt {rotfmt}, angle_unit rad" in stderr
     assert "rate_hz 200" in stderr

@@ -9,7 +9,13 @@ import pytest
 
 from fogd.protocols import get
 from fogd.protocols.base import FrameError
-from fogd.protocols.fogdbin import FRAME_LENGTHS, TYPE_COMP_IMU, CompImu, decode_comp_imu, encode_comp_imu
+from fogd.protocols.fogdbin import (
+    FRAME_LENGTHS,
+    TYPE_COMP_IMU,
+    CompImu,
+    decode_comp_imu,
+    encode_comp_imu,
+)
 from fogd.protocols.lexer import Lexer
 
 ALL = (True, True, True)

@@ -33,7 +33,6 @@ import numpy as np
 
 from fogd import __version__
 from fogd.core.channels import ChannelCompensator, ChannelModels
-from fogd.core.compensator import Compensated
 from fogd.core.estimator import SCALAR_CHUNK
 from fogd.core.flags import Flag, describe
 from fogd.core.frozen import FrozenModel

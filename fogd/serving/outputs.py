@@ -34,8 +34,7 @@ from fogd.core.columns import ACCEL_CHANNELS, CHANNELS, GYRO_CHANNELS, OUTPUT_FO
 from fogd.core.compensator import Compensated
 from fogd.errors import DeviceError, describe_os_error
 from fogd.protocols import Protocol
-from fogd.protocols.base import Frame
-from fogd.protocols.base import NAN
+from fogd.protocols.base import NAN, Frame
 from fogd.protocols.fogdbin import SEQ_MODULUS, CompImu, FogdProtocol, encode_comp_imu
 from fogd.serving.channels import ChannelPlan
 from fogd.serving.ring import RATE_KINDS
