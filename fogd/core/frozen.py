@@ -13,6 +13,8 @@ Each evaluator's parameters are exactly what the model file stores under `params
 and sums in plain Python (each evaluator's `point`), because numpy's per-call overhead dominates one row. It
 agrees with `predict` to rounding (sums in another order, `math.exp` for numpy's exp), far inside 1e-12
 relative; large kernel models go through numpy instead, one row at a time (`POINT_NUMPY_WORK`).
+
+`StackedModels` evaluates several models on the same inputs (an IMU's channels) together, in one numpy pass.
 """
 
 from __future__ import annotations
@@ -327,3 +329,172 @@ def build_evaluator(method: str, params: dict) -> Evaluator:
             float(params["intercept"]), powers,
         )  # fmt: skip
     raise ValueError(f"unknown method {method!r}")
+
+
+_STACK_ELEMENTS = 1 << 17  # rows x terms x inputs per block of StackedModels.predict: bounded memory
+
+
+def _stack_terms(model: FrozenModel) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, float]:
+    """A stackable model's (trend powers, trend coefs, kernel centres, kernel weights, gamma, intercept), in
+    its scaled space: every method evaluator is a polynomial trend (a linear one has the identity's powers:
+    x ** 1 is x and x ** 0 is 1.0 exactly) plus a Gaussian kernel sum plus an intercept."""
+    evaluator, d = model.evaluator, len(model.inputs)
+    identity = np.eye(d, dtype=np.int64)
+    no_centres, no_weights = np.empty((0, d)), np.empty(0)
+    if isinstance(evaluator, Linear):
+        return identity, evaluator.coef, no_centres, no_weights, 0.0, evaluator.intercept
+    if isinstance(evaluator, Polynomial):
+        return evaluator.powers, evaluator.coef, no_centres, no_weights, 0.0, evaluator.intercept
+    if isinstance(evaluator, RbfNetwork):
+        return (np.empty((0, d), dtype=np.int64), np.empty(0), evaluator.centres, evaluator.coef,
+                0.5 / evaluator.width**2, evaluator.intercept)  # fmt: skip
+    assert isinstance(evaluator, Svr)
+    powers = identity if evaluator.trend_powers is None else evaluator.trend_powers
+    return (powers, evaluator.trend_coef, evaluator.support_vectors, evaluator.dual_coef, evaluator.gamma,
+            evaluator.intercept)  # fmt: skip
+
+
+class StackedModels:
+    """Several frozen models on the same inputs (an IMU's channels) evaluated in one numpy pass per block of rows,
+    so six channels cost a few numpy calls more than one rather than six times their calls.
+
+    Each channel's input row is clamped and scaled as its own model does; the kernel terms of every channel
+    (support vectors, RBF centres) are stacked into one matrix whose rows each read their channel's scaled row,
+    with per-row -gamma and weights, exp'd once and summed per channel (np.add.reduceat); the trend monomials
+    likewise. One row goes through the very operations of many (`predict_one` is `predict` of that row, bit for
+    bit, whatever the block); against a model's own `predict` only the order of the kernel and trend sums
+    differs, so each channel agrees with it within 1e-12 relative. (The centres stay in each model's scaled
+    space rather than raw units with the scaling folded into per-row weights: then every difference and square
+    is the model's own float, and nothing but the summation order can part them.)"""
+
+    def __init__(self, models: Sequence[FrozenModel]) -> None:
+        if not models:
+            raise ValueError("StackedModels needs at least one model")
+        inputs = models[0].inputs
+        if any(model.inputs != inputs for model in models) or not all(map(self.supports, models)):
+            raise ValueError("StackedModels stacks the method evaluators of models on the same inputs")
+        d, count = len(inputs), len(models)
+        self.models = tuple(models)
+        self.inputs = inputs
+        self._shifted = models[0]._shifted
+        moved = sorted(self._shifted)  # the columns clamp_rows moves together: a slice when they are adjacent
+        self._moved: slice | np.ndarray = (slice(moved[0], moved[-1] + 1) if moved and moved[-1] - moved[0] + 1 == len(moved)
+                                           else np.array(moved, dtype=np.intp))  # fmt: skip
+        per_channel = lambda name: np.stack([np.broadcast_to(np.asarray(getattr(m, name), dtype=np.float64), (d,))
+                                             for m in models], axis=1)[:, None, :]  # fmt: skip
+        self._low, self._high = per_channel("domain_min"), per_channel("domain_max")
+        self._mean, self._scale = per_channel("x_mean"), per_channel("x_scale")
+        self._y_mean = np.array([m.y_mean for m in models], dtype=np.float64)
+        self._y_scale = np.array([m.y_scale for m in models], dtype=np.float64)
+        terms = [_stack_terms(model) for model in models]
+        self._intercept = np.array([t[5] for t in terms], dtype=np.float64)
+        # trend: the monomials of every channel, each row reading its channel's scaled inputs
+        t_sizes = [len(t[1]) for t in terms]
+        self._t_cols = np.flatnonzero(t_sizes)
+        self._t_sizes = np.array(t_sizes, dtype=np.intp)
+        self._t_starts = _starts(t_sizes)
+        self._powers = np.concatenate([np.asarray(t[0], dtype=np.float64).reshape(-1, d) for t in terms]).T[:, None, :].copy()
+        self._coef = np.concatenate([np.asarray(t[1], dtype=np.float64) for t in terms])
+        # kernel: the centres of every channel, with their channel's -gamma and their weights
+        k_sizes = [len(t[3]) for t in terms]
+        self._k_cols = np.flatnonzero(k_sizes)
+        self._k_sizes = np.array(k_sizes, dtype=np.intp)
+        self._k_starts = _starts(k_sizes)
+        self._centres = np.concatenate([np.asarray(t[2], dtype=np.float64).reshape(-1, d) for t in terms]).T[:, None, :].copy()
+        self._weights = np.concatenate([np.asarray(t[3], dtype=np.float64) for t in terms])
+        self._neg_gamma = np.repeat([-t[4] for t in terms], k_sizes).astype(np.float64)
+        self._every_trend = len(self._t_cols) == count
+        self._block_rows = max(1, _STACK_ELEMENTS // max(1, (len(self._coef) + len(self._weights)) * max(1, d)))
+        self._last: tuple | None = None
+
+    @staticmethod
+    def supports(model: FrozenModel) -> bool:
+        """Whether the model's evaluator can be stacked (every method's; not a plain callable)."""
+        return type(model.evaluator) in (Linear, Polynomial, RbfNetwork, Svr)
+
+    def __len__(self) -> int:
+        return len(self.models)
+
+    def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(thermal error, True where an input was clamped), each (rows, models), for raw input rows x (n, d):
+        column k is models[k].predict(x) (within 1e-12 relative)."""
+        x = np.ascontiguousarray(x, dtype=np.float64).reshape(-1, len(self.inputs))
+        if len(x) >= _UNIQUE_MIN_ROWS:  # exact, as FrozenModel.predict: a row's result is that row's alone
+            rows, inverse = unique_rows(x)
+            comp, clamped = self._blocks(rows)
+            return comp[inverse], clamped[inverse]
+        return self._blocks(x)
+
+    def predict_one(self, x: Sequence[float]) -> tuple[list[float], list[bool]]:
+        """`predict` of one row of Python floats, as lists by model: the same floats as `predict`."""
+        x = tuple(x)
+        last = self._last
+        if last is not None and last[0] == x:  # quantised inputs repeat sample after sample: exact reuse
+            return last[1]
+        comp, clamped = self._evaluate(np.array([x], dtype=np.float64))
+        result = comp[0].tolist(), clamped[0].tolist()
+        if all(value == value for value in x):  # a NaN row is never remembered (NaN == NaN is False)
+            self._last = (x, result)
+        return result
+
+    def _blocks(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if len(x) <= self._block_rows:
+            return self._evaluate(x)
+        parts = [self._evaluate(x[start : start + self._block_rows]) for start in range(0, len(x), self._block_rows)]
+        return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+
+    def _evaluate(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        # (inputs, rows, models) throughout: sums and products over the inputs are one vectorised pass per
+        # input in column order, the same floats for one row as for a block
+        raw = x.T[:, :, None]
+        xs = np.maximum(raw, self._low)  # np.clip, as clamp_rows, for every model at once
+        np.minimum(xs, self._high, out=xs)
+        if self._shifted:
+            first, moved = self._shifted[0], self._moved
+            shift = xs[first] - raw[first]
+            if isinstance(moved, slice):
+                np.add(raw[moved], shift, out=xs[moved])
+            else:
+                xs[moved] = raw[moved] + shift
+        clamped = np.logical_or.reduce(xs != raw, axis=0)
+        xs -= self._mean
+        xs /= self._scale
+        if self._every_trend:
+            g = self._trend(xs)
+        else:
+            g = np.zeros(xs.shape[1:])
+            if len(self._t_cols):
+                g[:, self._t_cols] = self._trend(xs)
+        if len(self._k_cols):
+            g[:, self._k_cols] += self._kernel(xs)
+        g += self._intercept
+        g *= self._y_scale
+        g += self._y_mean
+        return g, clamped
+
+    def _trend(self, xs: np.ndarray) -> np.ndarray:
+        terms = np.repeat(xs, self._t_sizes, axis=2)  # each monomial's row reads its model's inputs
+        np.power(terms, self._powers, out=terms)
+        monomials = terms[0]
+        for column in range(1, len(terms)):
+            monomials *= terms[column]
+        monomials *= self._coef
+        return np.add.reduceat(monomials, self._t_starts, axis=1)
+
+    def _kernel(self, xs: np.ndarray) -> np.ndarray:
+        difference = np.repeat(xs, self._k_sizes, axis=2)  # each centre's row reads its model's inputs
+        difference -= self._centres
+        np.multiply(difference, difference, out=difference)
+        squared = difference[0]
+        for column in range(1, len(difference)):
+            squared += difference[column]
+        squared *= self._neg_gamma
+        np.exp(squared, out=squared)
+        squared *= self._weights
+        return np.add.reduceat(squared, self._k_starts, axis=1)
+
+
+def _starts(sizes: list[int]) -> np.ndarray:
+    """Where each non-empty segment of `sizes` starts in their concatenation (np.add.reduceat's indices)."""
+    ends = np.cumsum(sizes)
+    return np.array([end - size for end, size in zip(ends.tolist(), sizes) if size], dtype=np.intp)
