@@ -475,12 +475,13 @@ def test_multi_scale_guarded_model_through_fogd_equals_replay(tmp_path):
     assert ((flags & 32) != 0).any() and ((flags & 32) == 0).sum() > SAMPLES // 4  # both branches were used
 
 
-def lag_bank_model_file(tmp_path: Path) -> Path:
-    """A model like fogd-train's default (an SVR on a polynomial trend over a bank of lags, version 2), its
-    calibrated domain ending at 22 C so that a run past it is clamped."""
-    from fogd.core.inputs import parse_inputs
+def lag_bank_model_file(tmp_path: Path, dequantise_c: float | None = None) -> Path:
+    """A model like fogd-train's default (an SVR on a polynomial trend over a bank of lags, version 2; of the
+    dequantised temperature with `dequantise_c`, version 4), its calibrated domain ending at 22 C so that a run
+    past it is clamped."""
+    from fogd.core.inputs import dequantised, parse_inputs
 
-    inputs = parse_inputs("lags@0.3,1,3,10")
+    inputs = dequantised(parse_inputs("lags@0.3,1,3,10"), dequantise_c)
     powers = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1], [2, 0, 0, 0], [3, 0, 0, 0], [0, 2, 0, 0]]
     model = tmp_path / "bank.json"
     doc = modelfile.document(
@@ -505,3 +506,12 @@ def test_lag_bank_model_with_polynomial_trend_through_fogd_equals_replay(tmp_pat
     expected = kvh_run_through_fogd_equals_replay(tmp_path, model, seed=7)
     flags = expected[:, 6].astype(int)
     assert ((flags & 2) != 0).any() and ((flags & 2) == 0).any()  # clamped and unclamped samples both served
+
+
+def test_dequantised_lag_bank_model_through_fogd_equals_replay(tmp_path):
+    """fogd-train's default for a KVH's whole degrees (the lags of the dequantised temperature, model file
+    version 4): the daemon, frame by frame, equals replay."""
+    model = lag_bank_model_file(tmp_path, dequantise_c=1.0)
+    assert json.loads(model.read_text())["version"] == 4
+    expected = kvh_run_through_fogd_equals_replay(tmp_path, model, seed=7)
+    assert np.unique(expected[:, 2]).size > 3  # the run's temperature crosses levels: the dequantiser works

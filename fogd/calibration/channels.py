@@ -27,10 +27,10 @@ from fogd.calibration.models.folds import MIN_RUNS_LEFT_OUT, drift_rmse
 from fogd.calibration.replay import replay, replay_table
 from fogd.calibration.selection import select, table_lines
 from fogd.calibration.tables import error_table
-from fogd.calibration.training import TrainConfig, Trained, prepare, train
+from fogd.calibration.training import TrainConfig, Trained, for_sensor, prepare, train
 from fogd.core import modelfile
 from fogd.core.columns import ACCEL_CHANNELS, SINGLE_CHANNEL
-from fogd.core.inputs import InputSpec
+from fogd.core.inputs import InputSpec, describe_inputs
 from fogd.core.runio import Run
 from fogd.errors import FogdError, InputError
 
@@ -130,7 +130,9 @@ def channel_jobs(unit: str, runs: list[Run], holdouts: list[Run], channels: list
     chosen = list(dict.fromkeys(channels)) if channels else common
     if not chosen:
         raise InputError(f"{where}the runs have no channel in common")
-    inputs = [run_inputs(run, settings.sets) for run in runs] if len(chosen) > 1 else None
+    # the sets as training will compute them (dequantised for a coarse sensor), so that every channel finds them
+    sets = [for_sensor(runs, dataclasses.replace(settings.config, inputs=specs)).inputs for specs in settings.sets]
+    inputs = [run_inputs(run, sets) for run in runs] if len(chosen) > 1 else None
     return [ChannelJob(unit, name, [run.channel(name) for run in runs], [run.channel(name) for run in holdouts], inputs)
             for name in chosen]  # fmt: skip
 
@@ -233,6 +235,10 @@ def summary(trained: Trained, unit: str = "deg/h") -> list[str]:
     if "epsilon_dph" in hyper:  # the tube in deg/h says what the scaled epsilon says; one of them is enough
         hyper.pop("epsilon", None)
     lines = [f"{trained.fitted.method}: " + ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in hyper.items())]
+    resolutions = {spec.dequantise_c for spec in trained.model.inputs} - {None}
+    if resolutions:
+        lines.append(f"inputs: {describe_inputs(trained.model.inputs)}: the sensor reports steps of "
+                     f"{', '.join(f'{value:g}' for value in resolutions)} C (--sensor-resolution-c 0: the readings)")
     if trained.fitted.cv_rmse_dph is not None:
         lines.append(f"held-out (cv) drift RMSE: {trained.fitted.cv_rmse_dph:.3e} {unit} (about each run's mean), "
                      f"uncompensated {uncompensated_drift_dph(trained):.3e} {unit}")

@@ -38,6 +38,7 @@ from fogd.calibration.models.least_squares import POLY_TERMS
 from fogd.calibration.training import (
     TrainConfig,
     Trained,
+    for_sensor,
     options_for_inputs,
     prepare,
     train,
@@ -114,7 +115,8 @@ def select(runs, config: TrainConfig, sets: list[tuple[InputSpec, ...]], familie
     candidates: list[Candidate] = []
     for specs in sets:
         options = options_for_inputs(config.fit, specs)
-        set_config = dataclasses.replace(config, inputs=specs, fit=options)
+        set_config = for_sensor(runs, dataclasses.replace(config, inputs=specs, fit=options))
+        specs = set_config.inputs
         prepared = prepare(runs, set_config, min_warmup_s=common_s)
         data, reference = prepared
         for method in families:

@@ -17,11 +17,13 @@ from fogd.calibration.features import TrainingSet, training_set
 from fogd.calibration.models import FitOptions, Fitted, fit
 from fogd.core import domain, modelfile
 from fogd.core.columns import BLOCK_S, block_samples
+from fogd.core.dequantise import COARSE_RESOLUTION_C, detect_resolution_c
 from fogd.core.errorstats import ErrorStats
 from fogd.core.frozen import FrozenModel
 from fogd.core.inputs import (
     DEFAULT_INPUTS_TEXT,
     InputSpec,
+    dequantised,
     parse_inputs,
     shifted_columns,
     static_columns,
@@ -42,6 +44,20 @@ class TrainConfig:
     fit: FitOptions = field(default_factory=FitOptions)
     name: str | None = None
     domain_guard: bool = False  # store the joint-space guard and its linear fallback (fogd.core.domain), as --domain-guard
+    sensor_resolution_c: float | None = None  # None: detected from the runs; a coarse sensor is dequantised
+
+
+def for_sensor(runs: list[Run], config: TrainConfig) -> TrainConfig:
+    """`config` with its inputs computed from the dequantised temperature when the runs' sensor is coarse
+    (fogd.core.dequantise: a KVH's whole degrees), from the readings otherwise; inputs already marked are kept."""
+    if any(spec.dequantise_c is not None for spec in config.inputs):
+        return config
+    resolution_c = config.sensor_resolution_c
+    if resolution_c is None:
+        resolution_c = detect_resolution_c([run.temp_c for run in runs])
+    if resolution_c < COARSE_RESOLUTION_C:
+        return config
+    return dataclasses.replace(config, inputs=dequantised(config.inputs, resolution_c))
 
 
 @dataclass
@@ -68,6 +84,7 @@ class Trained:
 
 def prepare(runs: list[Run], config: TrainConfig, min_warmup_s: float = 0.0) -> tuple[TrainingSet, float]:
     """Block rows of the runs and the reference rate; shared by every method of a comparison."""
+    config = for_sensor(runs, config)
     data = training_set(runs, config.inputs, config.block_s, min_warmup_s)
     reference = float(np.mean(data.rate_dph)) if config.reference == "mean" else float(config.reference)
     return data, reference
@@ -75,6 +92,7 @@ def prepare(runs: list[Run], config: TrainConfig, min_warmup_s: float = 0.0) -> 
 
 def train(runs: list[Run], config: TrainConfig, prepared: tuple[TrainingSet, float] | None = None) -> Trained:
     """Fit `config.method` to the runs and return the validated model."""
+    config = for_sensor(runs, config)
     data, reference = prepared or prepare(runs, config)
     error = data.rate_dph - reference
     options = options_for_inputs(config.fit, config.inputs)

@@ -143,6 +143,11 @@ def parser() -> ArgumentParser:
         "--reference", default="mean",
         help="rate subtracted to get the error: 'mean' of the training blocks, or a value in deg/h",
     )  # fmt: skip
+    p.add_argument(
+        "--sensor-resolution-c", type=non_negative_float, default=None, metavar="C",
+        help="the temperature sensor's resolution (default: seen in the runs); from 0.5 C (a KVH's whole degrees) "
+             "the inputs are computed from a dequantised temperature, which the model file keeps; 0: never",
+    )  # fmt: skip
     p.add_argument("--name", help="model name recorded in the file and in the daemon's status")
     p.add_argument("--compare", action="store_true", help="fit every method and print the paper's table 3")
     p.add_argument("--holdout", nargs="+", default=[], metavar="RUN.csv", help="runs not used for training: table 4 each")
@@ -194,6 +199,7 @@ def body(argv: Sequence[str] | None) -> int:
             fitness=args.fitness, trend=args.trend, folds=args.folds, n_jobs=args.jobs, seed=args.seed, progress=not args.quiet,
         ),  # fmt: skip
         name=args.name,
+        sensor_resolution_c=args.sensor_resolution_c,
     )
     settings = Settings(config, sets, auto=auto, compare=args.compare, log=not args.quiet)
     jobs = [channel_jobs(unit.name if args.manifest else "", runs, [read_run(path) for path in unit.holdout],

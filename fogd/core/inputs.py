@@ -9,14 +9,18 @@ works in exact integer sums, the lag filter runs one recurrence in both forms).
 Kinds: `temp_c` (the held temperature), `temp_rate_cps` (eq. 16 with its window settings; several windows
 may be used at once) and `temp_lag_c` (a first-order lag of the temperature with time constant `tau_s`,
 fogd.core.lag). `parse_inputs` reads the `fogd-train --inputs` syntax, e.g. `temp,rate@50,rate@300,lag@600`.
+Any of them may be computed from the dequantised temperature of a coarse sensor instead of its readings
+(`dequantise_c`, the sensor's resolution; fogd.core.dequantise), one dequantiser shared by all the inputs.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
+from fogd.core.dequantise import Dequantiser
 from fogd.core.estimator import EstimatorSettings, TempRateEstimator, temp_rate_batch
 from fogd.core.lag import MAX_TAU_S, LagFilter
 
@@ -31,16 +35,18 @@ INPUTS_SYNTAX = (
     "the range log-spaced); e.g. temp,rate@50,rate@300,lag@600 or lags@30..3000/5"
 )
 MAX_INPUTS = 16
+MAX_RESOLUTION_C = 10.0
 
 
 @dataclass(frozen=True)
 class InputSpec:
     """One model input: `temp_c`, `temp_rate_cps` with its eq. 16 estimator settings, or `temp_lag_c` with
-    its time constant `tau_s`."""
+    its time constant `tau_s`; of the readings, or of their dequantised estimate (`dequantise_c`)."""
 
     kind: str
     estimator: EstimatorSettings | None = None
     tau_s: float | None = None
+    dequantise_c: float | None = None  # the sensor's resolution when computed from fogd.dequantise's estimate
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -51,6 +57,8 @@ class InputSpec:
             raise ValueError(f"input {self.kind!r}: a time constant tau_s goes with {TEMP_LAG} only")
         if self.tau_s is not None and not 0 < self.tau_s <= MAX_TAU_S:
             raise ValueError(f"lag time constant must be in (0, {MAX_TAU_S:g}] s, got {self.tau_s}")
+        if self.dequantise_c is not None and not 0 < self.dequantise_c <= MAX_RESOLUTION_C:
+            raise ValueError(f"sensor resolution must be in (0, {MAX_RESOLUTION_C:g}] C, got {self.dequantise_c}")
 
     @property
     def label(self) -> str:
@@ -71,11 +79,12 @@ class InputSpec:
         return "temp"
 
     def to_dict(self) -> dict:
+        extra = {} if self.dequantise_c is None else {"dequantise_c": float(self.dequantise_c)}
         if self.estimator is not None:
-            return {"kind": self.kind, **self.estimator.to_dict()}
+            return {"kind": self.kind, **self.estimator.to_dict(), **extra}
         if self.tau_s is not None:
-            return {"kind": self.kind, "tau_s": float(self.tau_s)}
-        return {"kind": self.kind}
+            return {"kind": self.kind, "tau_s": float(self.tau_s), **extra}
+        return {"kind": self.kind, **extra}
 
 
 def parse_inputs(text: str, average_s: float = 0.5, step_s: float = 0.0) -> tuple[InputSpec, ...]:
@@ -142,7 +151,20 @@ def _float_or_none(text: str) -> float | None:
 
 
 def describe_inputs(specs: tuple[InputSpec, ...]) -> str:
-    """The `--inputs` spelling of a whole input set (two or more lags in a row as one `lags@` bank)."""
+    """The `--inputs` spelling of a whole input set (two or more lags in a row as one `lags@` bank), followed
+    by the resolution it dequantises, if any."""
+    resolutions = sorted({spec.dequantise_c for spec in specs if spec.dequantise_c is not None})
+    suffix = "".join(f" (dequantised {resolution_c:g} C)" for resolution_c in resolutions)
+    return _describe_plain(specs) + suffix
+
+
+def dequantised(specs: tuple[InputSpec, ...], resolution_c: float | None) -> tuple[InputSpec, ...]:
+    """The same inputs computed from the dequantised temperature of a sensor of `resolution_c` (None: from
+    the readings)."""
+    return tuple(dataclasses.replace(spec, dequantise_c=resolution_c) for spec in specs)
+
+
+def _describe_plain(specs: tuple[InputSpec, ...]) -> str:
     parts: list[str] = []
     index = 0
     while index < len(specs):
@@ -227,7 +249,9 @@ def warmup_samples(specs: tuple[InputSpec, ...], rate_hz: float) -> int:
 def inputs_batch(temp_c: np.ndarray, specs: tuple[InputSpec, ...], rate_hz: float) -> np.ndarray:
     """All inputs for a whole run of finite temperatures: an (n, len(specs)) array."""
     temp_c = np.asarray(temp_c, dtype=np.float64)
-    columns = [_column_batch(temp_c, spec, rate_hz) for spec in specs]
+    sources = {resolution_c: temp_c if resolution_c is None else Dequantiser(resolution_c, rate_hz).update(temp_c)
+               for resolution_c in _resolutions(specs)}  # fmt: skip
+    columns = [_column_batch(sources[spec.dequantise_c], spec, rate_hz) for spec in specs]
     return np.column_stack(columns) if columns else np.empty((temp_c.size, 0))
 
 
@@ -237,6 +261,11 @@ def _column_batch(temp_c: np.ndarray, spec: InputSpec, rate_hz: float) -> np.nda
     if spec.tau_s is not None:
         return LagFilter(spec.tau_s, rate_hz).update(temp_c)
     return temp_c
+
+
+def _resolutions(specs: tuple[InputSpec, ...]) -> list[float | None]:
+    """The temperature sources the inputs need: None (the readings) and each dequantised resolution."""
+    return list(dict.fromkeys(spec.dequantise_c for spec in specs))
 
 
 def _streaming(spec: InputSpec, rate_hz: float) -> TempRateEstimator | LagFilter | None:
@@ -254,6 +283,8 @@ class InputBank:
         self.specs = specs
         self.rate_hz = float(rate_hz)
         self._estimators = [_streaming(spec, rate_hz) for spec in specs]
+        self._dequantisers = {resolution_c: Dequantiser(resolution_c, rate_hz)
+                              for resolution_c in _resolutions(specs) if resolution_c is not None}  # fmt: skip
         self.warmup = warmup_samples(specs, rate_hz)
         self.count = 0
 
@@ -265,17 +296,25 @@ class InputBank:
         for estimator in self._estimators:
             if estimator is not None:
                 estimator.reset()
+        for dequantiser in self._dequantisers.values():
+            dequantiser.reset()
         self.count = 0
 
     def update(self, temp_c: np.ndarray) -> np.ndarray:
         temp_c = np.atleast_1d(np.asarray(temp_c, dtype=np.float64))
         out = np.empty((temp_c.size, len(self.specs)))
-        for column, estimator in enumerate(self._estimators):
-            out[:, column] = temp_c if estimator is None else estimator.update(temp_c)
+        sources = {None: temp_c} | {key: dq.update(temp_c) for key, dq in self._dequantisers.items()}
+        for column, (spec, estimator) in enumerate(zip(self.specs, self._estimators)):
+            source = sources[spec.dequantise_c]
+            out[:, column] = source if estimator is None else estimator.update(source)
         self.count += temp_c.size
         return out
 
     def update_one(self, temp_c: float) -> tuple[float, ...]:
         """Feed one finite temperature; its input row as Python floats, the same floats `update` gives."""
         self.count += 1
-        return tuple(temp_c if estimator is None else estimator.update_one(temp_c) for estimator in self._estimators)
+        if not self._dequantisers:
+            return tuple(temp_c if estimator is None else estimator.update_one(temp_c) for estimator in self._estimators)
+        sources = {None: temp_c} | {key: dq.update_one(temp_c) for key, dq in self._dequantisers.items()}
+        return tuple(sources[spec.dequantise_c] if estimator is None else estimator.update_one(sources[spec.dequantise_c])
+                     for spec, estimator in zip(self.specs, self._estimators))  # fmt: skip

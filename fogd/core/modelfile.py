@@ -13,13 +13,17 @@ inputs may be `temp_lag_c` (with `tau_s`) and several `temp_rate_cps` windows, a
 model's own input and output scaling).
 
 Version 3 is a multi-channel file (an IMU's gyros and accelerometers, fogd.core.columns.CHANNELS): `channels`
-maps each channel it covers to that channel's model, a whole version-2 document, validated as one; beside it
+maps each channel it covers to that channel's model, a whole version-2 (or 4) document, validated as one; beside it
 only `format`, `version`, `name`, `created_utc` and `fogd_version`. Only multi-channel files are version 3: a
 single-axis model is still written as version 2, byte for byte as before, so an older fogd keeps loading what
 a single-axis training writes, and refuses a multi-channel file by its version rather than misreading it.
-`load` reads single-channel files (versions 1 and 2) as it always has and refuses a version-3 file in one line;
-`load_channels` reads any of them as a `ChannelModels` (channel name -> FrozenModel; a version-1 or -2 file
-is the one channel `rate_dph`).
+`load` reads single-channel files (versions 1, 2 and 4) as it always has and refuses a version-3 file in one line;
+`load_channels` reads any of them as a `ChannelModels` (channel name -> FrozenModel; a version-1, -2 or -4
+file is the one channel `rate_dph`).
+
+Version 4 is a single-channel model (alone, or as a channel's model in a version-3 file) whose inputs may
+carry `dequantise_c`: computed from fogd.core.dequantise's estimate of a coarse sensor's temperature. Only a
+model with such an input is written as version 4, so an older fogd refuses it by its version.
 """
 
 from __future__ import annotations
@@ -38,13 +42,14 @@ from fogd.core.columns import CHANNELS, SINGLE_CHANNEL
 from fogd.core.domain import DomainGuard
 from fogd.core.estimator import EstimatorSettings
 from fogd.core.frozen import FrozenModel, build_evaluator
-from fogd.core.inputs import KINDS, TEMP_LAG, TEMP_RATE, InputSpec
+from fogd.core.inputs import KINDS, MAX_RESOLUTION_C, TEMP_LAG, TEMP_RATE, InputSpec
 from fogd.core.lag import MAX_TAU_S
 from fogd.errors import ModelFileError, NoModelFileError, describe_os_error
 
 MODEL_FORMAT = "fogd-model"
-MODEL_VERSION = 2  # a single-channel file
-READABLE_VERSIONS = (1, 2)  # of a single-channel file (and of each channel's model in a multi-channel file)
+MODEL_VERSION = 2  # a single-channel file whose inputs are all computed from the readings
+DEQUANTISED_VERSION = 4  # a single-channel file (or a channel's model) with a dequantised input
+READABLE_VERSIONS = (1, 2, DEQUANTISED_VERSION)  # of a single-channel file (and of each channel's model)
 CHANNELS_VERSION = 3  # a multi-channel file
 CHANNELS_TOP_KEYS = {"format", "version", "name", "channels", "created_utc", "fogd_version"}
 MAX_MODEL_BYTES = 32 * 1024 * 1024
@@ -111,7 +116,7 @@ def document(
     optional = {} if domain_guard is None else {"domain_guard": domain_guard}
     return {
         "format": MODEL_FORMAT,
-        "version": MODEL_VERSION,
+        "version": DEQUANTISED_VERSION if any(spec.dequantise_c is not None for spec in inputs) else MODEL_VERSION,
         "name": name,
         "method": method,
         "inputs": [spec.to_dict() for spec in inputs],
@@ -142,7 +147,7 @@ def channels_document(*, name: str, documents: dict[str, dict[str, Any]], create
 
 
 def load(path: str | Path) -> FrozenModel:
-    """Read and validate a single-channel model file (version 1 or 2); raises ModelFileError with one line
+    """Read and validate a single-channel model file (version 1, 2 or 4); raises ModelFileError with one line
     saying what is wrong, or that the file is a multi-channel one (`load_channels` reads those)."""
     source = str(path)
     return from_document(_parse(path), source=source)
@@ -318,7 +323,7 @@ def from_document(doc: Any, *, source: str = "model") -> FrozenModel:
     if _is_multi_channel(doc) and isinstance(doc.get("channels"), dict):
         channels = ", ".join(printable(str(name))[:40] for name in list(doc["channels"])[:len(CHANNELS)])
         check.fail("version", f"is {CHANNELS_VERSION}: a model per channel ({channels}); this reads a single-channel "
-                              "model file (version 1 or 2)")
+                              "model file (version 1, 2 or 4)")
     check.mapping(doc, "", TOP_KEYS, optional=OPTIONAL_TOP_KEYS)
     _control_characters(doc, "", check)
     if doc["format"] != MODEL_FORMAT:
@@ -330,7 +335,7 @@ def from_document(doc: Any, *, source: str = "model") -> FrozenModel:
     method = check.string(doc["method"], "method")
     if method not in METHODS:
         check.fail("method", f"is {method[:40]!r}; known methods: {', '.join(METHODS)}")
-    inputs = check.inputs(doc["inputs"])
+    inputs = check.inputs(doc["inputs"], dequantised=version == DEQUANTISED_VERSION)
     d = len(inputs)
     check.mapping(doc["input_scaling"], "input_scaling", {"mean", "scale"})
     x_mean = check.vector(doc["input_scaling"]["mean"], "input_scaling.mean", d)
@@ -431,7 +436,7 @@ class _Checker:
         rows = [self.vector(row, f"{where}[{i}]", columns) for i, row in enumerate(value)]
         return np.array(rows).reshape(len(rows), columns)
 
-    def inputs(self, value: Any) -> tuple[InputSpec, ...]:
+    def inputs(self, value: Any, *, dequantised: bool = False) -> tuple[InputSpec, ...]:
         if not isinstance(value, list) or not 1 <= len(value) <= 16:
             self.fail("inputs", "must be a list of 1 to 16 inputs")
         specs = []
@@ -439,6 +444,12 @@ class _Checker:
             where = f"inputs[{i}]"
             if not isinstance(item, dict) or item.get("kind") not in KINDS:
                 self.fail(where, f"must be an object whose kind is one of {', '.join(KINDS)}")
+            resolution_c = None
+            if dequantised and "dequantise_c" in item:
+                item = dict(item)
+                resolution_c = self.number(item.pop("dequantise_c"), f"{where}.dequantise_c", positive=True)
+                if resolution_c > MAX_RESOLUTION_C:
+                    self.fail(f"{where}.dequantise_c", f"is above {MAX_RESOLUTION_C:g} C")
             if item["kind"] == TEMP_RATE:
                 self.mapping(item, where, {"kind", "window_s", "average_s", "step_s"})
                 settings = EstimatorSettings(
@@ -448,16 +459,16 @@ class _Checker:
                     self.fail(where, "needs 0 < 2 * average_s <= window_s <= 86400")
                 if not 0 <= settings.step_s <= settings.window_s:
                     self.fail(where, "needs 0 <= step_s <= window_s")
-                specs.append(InputSpec(TEMP_RATE, settings))
+                specs.append(InputSpec(TEMP_RATE, settings, dequantise_c=resolution_c))
             elif item["kind"] == TEMP_LAG:
                 self.mapping(item, where, {"kind", "tau_s"})
                 tau_s = self.number(item["tau_s"], f"{where}.tau_s")
                 if not 0 < tau_s <= MAX_TAU_S:
                     self.fail(where, f"needs 0 < tau_s <= {MAX_TAU_S:g}")
-                specs.append(InputSpec(TEMP_LAG, tau_s=tau_s))
+                specs.append(InputSpec(TEMP_LAG, tau_s=tau_s, dequantise_c=resolution_c))
             else:
                 self.mapping(item, where, {"kind"})
-                specs.append(InputSpec(item["kind"]))
+                specs.append(InputSpec(item["kind"], dequantise_c=resolution_c))
         if len(set(specs)) != len(specs):
             self.fail("inputs", "lists the same input twice")
         return tuple(specs)
