@@ -14,7 +14,7 @@ from fogd.core import modelfile
 from fogd.core.dequantise import COARSE_RESOLUTION_C, Dequantiser, dequantise_batch, detect_resolution_c
 from fogd.core.inputs import InputBank, dequantised, describe_inputs, inputs_batch, parse_inputs
 from fogd.core.runio import Run
-from fogd.errors import ModelFileError
+from fogd.errors import ModelFileError, UsageError
 
 RATE_HZ = 10.0
 
@@ -97,6 +97,9 @@ def test_the_default_dequantises_a_whole_degree_sensor_only():
     forced = for_sensor([_run(ramp)], TrainConfig(sensor_resolution_c=COARSE_RESOLUTION_C))
     assert all(spec.dequantise_c == COARSE_RESOLUTION_C for spec in forced.inputs)
     assert for_sensor([_run(np.round(ramp))], coarse) is coarse  # already decided: kept
+    assert for_sensor([_run(np.round(ramp / 20) * 20)], config).inputs == config.inputs  # 20 C jumps: no sensor
+    with pytest.raises(UsageError, match="at most 10 C"):
+        for_sensor([_run(ramp)], TrainConfig(sensor_resolution_c=20.0))
 
 
 @settings(max_examples=30, deadline=None)

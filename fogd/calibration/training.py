@@ -22,6 +22,7 @@ from fogd.core.errorstats import ErrorStats
 from fogd.core.frozen import FrozenModel
 from fogd.core.inputs import (
     DEFAULT_INPUTS_TEXT,
+    MAX_RESOLUTION_C,
     InputSpec,
     dequantised,
     parse_inputs,
@@ -30,7 +31,7 @@ from fogd.core.inputs import (
     temperature_columns,
 )
 from fogd.core.runio import Run
-from fogd.errors import InputError
+from fogd.errors import InputError, UsageError
 
 
 @dataclass
@@ -53,9 +54,12 @@ def for_sensor(runs: list[Run], config: TrainConfig) -> TrainConfig:
     if any(spec.dequantise_c is not None for spec in config.inputs):
         return config
     resolution_c = config.sensor_resolution_c
+    if resolution_c is not None and resolution_c > MAX_RESOLUTION_C:
+        raise UsageError(f"--sensor-resolution-c {resolution_c:g}: a temperature sensor's steps are at most "
+                         f"{MAX_RESOLUTION_C:g} C (0: use the readings as they are)")  # fmt: skip
     if resolution_c is None:
         resolution_c = detect_resolution_c([run.temp_c for run in runs])
-    if resolution_c < COARSE_RESOLUTION_C:
+    if not COARSE_RESOLUTION_C <= resolution_c <= MAX_RESOLUTION_C:  # beyond: jumps, not a sensor's steps
         return config
     return dataclasses.replace(config, inputs=dequantised(config.inputs, resolution_c))
 
