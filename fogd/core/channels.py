@@ -1,23 +1,42 @@
 """Several channels of one unit (an IMU's gyros and accelerometers) compensated from its one temperature.
 
 `ChannelModels` is what a model file holds by channel (fogd.core.modelfile.load_channels): each channel's
-frozen model. `ChannelCompensator` compensates them all, sample for sample as the daemon and `fogd-replay` do:
-every channel goes through its own `Compensator` (one code path for one channel or six), while the model
-inputs (eq. 16 rates, lags) are computed once per batch for each distinct input configuration. Channels whose
-models have the same inputs share one `InputBank`: the first of them feeds it, the others are handed the very
-rows it returned (`_SharedBank`). So each channel's output is the same, float for float and flag for flag, as
-a `Compensator` of its own on that channel, whatever the batch sizes.
+frozen model. `ChannelCompensator` compensates them all, sample for sample as the daemon and `fogd-replay` do,
+with the model inputs (eq. 16 rates, lags) computed once per batch for each distinct input configuration:
+channels whose models have the same inputs share one `InputBank` (`_SharedBank`: the first caller feeds it, the
+others are handed the very rows it returned).
+
+The channels of one bank are compensated together (`_Stack`): the temperature policies and flags they share
+once per sample, their models in one numpy pass (fogd.core.frozen.StackedModels), so six channels cost far
+less than six compensators. Each channel's temperatures, rates and flags are a `Compensator` of its own's bit
+for bit, its compensation within 1e-12 relative (the kernel and trend sums run in another order); streaming
+equals batch bit for bit, whatever the batch sizes (a row's floats are the same alone or in a block). A channel
+alone on its bank (a single-axis model above all) goes through its own `Compensator`, exactly as before.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Iterator, Mapping
 from typing import Any
 
 import numpy as np
 
-from fogd.core.compensator import Compensated, Compensator
-from fogd.core.frozen import FrozenModel
+from fogd.core.compensator import (
+    _CLAMPED,
+    _OUT_OF_DOMAIN,
+    _RATE_INVALID,
+    _TEMP_INVALID,
+    _TEMP_STALE,
+    _WARMUP,
+    TEMP_VALID_C,
+    Compensated,
+    Compensator,
+    hold_temperature,
+    temperature_valid,
+)
+from fogd.core.estimator import SCALAR_CHUNK
+from fogd.core.frozen import FrozenModel, StackedModels
 from fogd.core.inputs import InputBank, InputSpec
 
 
@@ -120,6 +139,146 @@ class _BankView:
         return row
 
 
+class _Stack:
+    """The channels of one input bank whose models stack (fogd.core.frozen.StackedModels), compensated together:
+    the temperature policies, the bank update and the flags they share once per sample, the models in one numpy
+    pass, and per channel only what is its own (its rate, its validity, its clamp, its domain guard). The
+    policies are `Compensator`'s, in the same order; each channel's `Compensator` holds its state (its held
+    temperature, which is every channel's) and its model."""
+
+    def __init__(self, channels: list[str], compensators: list[Compensator], view: _BankView) -> None:
+        self.channels = channels
+        self.compensators = compensators
+        self.view = view
+        self.models = StackedModels([compensator.model for compensator in compensators])
+        self.rate_column = compensators[0]._rate_column
+        self.guards = [(index, compensator.guard) for index, compensator in enumerate(compensators)
+                       if compensator.guard is not None]  # fmt: skip
+
+    def _held(self, temp_c: float) -> None:
+        for compensator in self.compensators:
+            compensator._held_temp_c = temp_c
+
+    def process(self, rates: list[Any], temp_c: Any, valid: list[Any], temp_stale: Any) -> list[Compensated]:
+        """`Compensator.process` of every channel: `rates` and `valid` (None: every sample valid) by channel."""
+        rates = [np.atleast_1d(np.asarray(rate, dtype=np.float64)) for rate in rates]
+        temp_in = np.atleast_1d(np.asarray(temp_c, dtype=np.float64))
+        n = temp_in.size
+        if any(rate.size != n for rate in rates):
+            raise ValueError("every channel needs one rate sample for each temperature sample")
+        if n <= SCALAR_CHUNK:
+            few = self.process_few(
+                [rate.tolist() for rate in rates], temp_in.tolist(),
+                [[True] * n if ok is None else np.asarray(ok, dtype=bool).tolist() for ok in valid],
+                [False] * n if temp_stale is None else np.asarray(temp_stale, dtype=bool).tolist(),
+            )  # fmt: skip
+            return [Compensated(np.array(one.temp_c, dtype=np.float64), np.array(one.temp_rate_cps, dtype=np.float64),
+                                np.array(one.comp_dph, dtype=np.float64), np.array(one.rate_comp_dph, dtype=np.float64),
+                                np.array(one.flags, dtype=np.uint16)) for one in few]  # fmt: skip
+        count = len(self.compensators)
+        flags = np.zeros(n, dtype=np.uint16)
+        temp_ok = temperature_valid(temp_in)
+        flags[~temp_ok] |= _TEMP_INVALID
+        temp_used = hold_temperature(temp_in, temp_ok, self.compensators[0]._held_temp_c)
+        if n:
+            self._held(float(temp_used[-1]))
+        known = np.isfinite(temp_used)
+        temp_rate_cps = np.zeros(n)
+        comps = np.zeros((n, count))
+        clamped = np.zeros((n, count), dtype=bool)
+        outside = np.zeros((n, count), dtype=bool)
+        if known.any():
+            first = int(np.argmax(known))
+            bank = self.view
+            warm_before = bank.count
+            x = bank.update(temp_used[first:])
+            warmup = np.arange(warm_before, warm_before + x.shape[0]) < bank.warmup
+            flags[first:][warmup] |= _WARMUP
+            comps[first:], clamped[first:] = self.models.predict(x)
+            for index, guard in self.guards:
+                out = guard.outside(x) & ~warmup
+                if out.any():
+                    comps[first:, index][out] = guard.fallback.predict(x[out])[0]
+                    outside[first:, index] = out
+            if self.rate_column is not None:
+                temp_rate_cps[first:] = x[:, self.rate_column]
+        flags[~known] |= _WARMUP
+        if temp_stale is not None:
+            flags[np.asarray(temp_stale, dtype=bool)] |= _TEMP_STALE
+        results = []
+        for index, (rate_dph, rate_valid) in enumerate(zip(rates, valid)):
+            own = flags.copy()
+            own[clamped[:, index]] |= _CLAMPED
+            own[outside[:, index]] |= _OUT_OF_DOMAIN
+            rate_ok = np.isfinite(rate_dph)
+            if rate_valid is not None:
+                rate_ok &= np.asarray(rate_valid, dtype=bool)
+            own[~rate_ok] |= _RATE_INVALID
+            comp_dph = comps[:, index].copy()
+            rate_comp_dph = np.where(rate_ok, rate_dph - comp_dph, rate_dph)
+            results.append(Compensated(temp_used.copy(), temp_rate_cps.copy(), comp_dph, rate_comp_dph, own))
+        return results
+
+    def process_few(
+        self, rates: list[list[float]], temp_c: list[float], valid: list[list[bool]], temp_stale: list[bool]
+    ) -> list[Compensated]:
+        """`Compensator.process_few` of every channel, a sample at a time, the models stacked."""
+        low_c, high_c = TEMP_VALID_C
+        bank, models, guards, rate_column = self.view, self.models, self.guards, self.rate_column
+        count = len(self.compensators)
+        held = self.compensators[0]._held_temp_c
+        none, zeros = [False] * count, [0.0] * count
+        temps, temp_rates = [], []
+        comps_out: list[list[float]] = [[] for _ in range(count)]
+        rates_out: list[list[float]] = [[] for _ in range(count)]
+        flags_out: list[list[int]] = [[] for _ in range(count)]
+        for sample, (temp, is_stale) in enumerate(zip(temp_c, temp_stale)):
+            flags = 0
+            if low_c <= temp <= high_c:  # (NaN is not)
+                held = temp
+            else:
+                flags |= _TEMP_INVALID
+            temp_rate = 0.0
+            outside = none
+            if held == held:  # a valid temperature has been seen
+                if bank.count < bank.warmup:
+                    flags |= _WARMUP
+                x = bank.update_one(held)
+                comps, clamped = models.predict_one(x)
+                if guards and not flags & _WARMUP:
+                    for index, guard in guards:
+                        if guard.outside(np.array(x))[0]:
+                            if outside is none:
+                                comps, outside = list(comps), list(none)
+                            comps[index] = guard.fallback.predict_one(x)[0]
+                            outside[index] = True
+                if rate_column is not None:
+                    temp_rate = x[rate_column]
+            else:
+                flags |= _WARMUP
+                comps, clamped = zeros, none
+            if is_stale:
+                flags |= _TEMP_STALE
+            temps.append(held)
+            temp_rates.append(temp_rate)
+            for index in range(count):
+                rate, comp, own = rates[index][sample], comps[index], flags
+                if clamped[index]:
+                    own |= _CLAMPED
+                if outside[index]:
+                    own |= _OUT_OF_DOMAIN
+                if valid[index][sample] and math.isfinite(rate):
+                    rates_out[index].append(rate - comp)
+                else:
+                    own |= _RATE_INVALID
+                    rates_out[index].append(rate)
+                comps_out[index].append(comp)
+                flags_out[index].append(own)
+        self._held(held)
+        return [Compensated(list(temps), list(temp_rates), comps_out[index], rates_out[index], flags_out[index])  # type: ignore[arg-type]
+                for index in range(count)]  # fmt: skip
+
+
 class ChannelCompensator:
     """Stateful, chunk-size independent compensation of several channels from one temperature: each channel
     with its own frozen model, the inputs computed once per batch for each distinct input configuration."""
@@ -138,10 +297,28 @@ class ChannelCompensator:
             view = _BankView(shared)
             self._views.append(view)
             self.compensators[channel] = Compensator(model, rate_hz, bank=view)  # type: ignore[arg-type]
+        # the channels of a bank whose models stack go through one _Stack; the others (and a bank's only
+        # channel: one channel is compensated exactly as a Compensator of its own) one by one
+        self._stacks: list[_Stack] = []
+        self._alone: dict[str, Compensator] = {}
+        for shared in self._banks.values():
+            stackable = [channel for channel, model in models.items()
+                         if model.inputs == shared.bank.specs and StackedModels.supports(model)]  # fmt: skip
+            if len(stackable) >= 2:
+                view = _BankView(shared)
+                self._views.append(view)
+                self._stacks.append(_Stack(stackable, [self.compensators[channel] for channel in stackable], view))
+        stacked = {channel for stack in self._stacks for channel in stack.channels}
+        self._alone = {channel: compensator for channel, compensator in self.compensators.items() if channel not in stacked}
 
     @property
     def channels(self) -> tuple[str, ...]:
         return tuple(self.compensators)
+
+    @property
+    def stacked(self) -> tuple[tuple[str, ...], ...]:
+        """The channels evaluated together (fogd.core.frozen.StackedModels), by input bank."""
+        return tuple(tuple(stack.channels) for stack in self._stacks)
 
     @property
     def banks(self) -> int:
@@ -172,12 +349,17 @@ class ChannelCompensator:
         channels' own validity where the caller knows it. Returns each channel's `Compensator.process`."""
         self._begin()
         valid = rate_valid or {}
-        return {
+        out = {
             channel: compensator.process(
                 self._rates(rates, channel), temp_c, rate_valid=valid.get(channel), temp_stale=temp_stale
             )
-            for channel, compensator in self.compensators.items()
+            for channel, compensator in self._alone.items()
         }
+        for stack in self._stacks:
+            results = stack.process([self._rates(rates, channel) for channel in stack.channels], temp_c,
+                                    [valid.get(channel) for channel in stack.channels], temp_stale)  # fmt: skip
+            out.update(zip(stack.channels, results))
+        return out if len(self._stacks) == 0 else {channel: out[channel] for channel in self.compensators}
 
     def process_few(
         self,
@@ -189,10 +371,15 @@ class ChannelCompensator:
         """`process` of a few samples as Python lists (the daemon's batches at real rates): each channel's
         `Compensator.process_few`; `rate_valid` must hold every channel's."""
         self._begin()
-        return {
+        out = {
             channel: compensator.process_few(self._rates(rates, channel), temp_c, rate_valid[channel], temp_stale)
-            for channel, compensator in self.compensators.items()
+            for channel, compensator in self._alone.items()
         }
+        for stack in self._stacks:
+            results = stack.process_few([self._rates(rates, channel) for channel in stack.channels], temp_c,
+                                        [rate_valid[channel] for channel in stack.channels], temp_stale)  # fmt: skip
+            out.update(zip(stack.channels, results))
+        return out if len(self._stacks) == 0 else {channel: out[channel] for channel in self.compensators}
 
     def _begin(self) -> None:
         for shared in self._banks.values():
