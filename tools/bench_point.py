@@ -11,6 +11,8 @@ with its training-RMSE fitness), fitted the way fogd-train fits them, the same t
     equal to the previous one reuses its result, exactly), and the same with that reuse defeated;
   - Compensator.process with 1 sample (what the daemon pays per frame when frames arrive one at a time) and
     with chunks of 4096 (what replay and the daemon under load pay), per sample.
+Then fogd-train's default model (1b) and, in the same run, that model on all six channels of an IMU through
+the ChannelCompensator fogd and fogd-replay run, beside it on one channel (1c; issue 12's six-vs-one).
 Target: fast per point >= 20x faster than sklearn per point, with output equal to 1e-9 deg/h.
 
 Usage: python tools/bench_point.py [--quick]
@@ -25,6 +27,8 @@ import numpy as np
 from bench_common import machine, print_table, sim_run, trained_model, us, verdict
 
 import fogd.core.estimator as fogd_estimator
+from fogd.core.channels import ChannelCompensator
+from fogd.core.columns import CHANNELS
 from fogd.core.compensator import Compensator
 from fogd.core.estimator import TempRateEstimator
 from fogd.core.inputs import DEFAULT_INPUTS_TEXT
@@ -204,6 +208,31 @@ def default_rows(run, points: int, swarm: tuple[int, int], paper_comp1_s: float,
     print_table(
         f"1b. fogd-train's default ({DEFAULT_INPUTS_TEXT}, coil trend, SVR) against the paper's PSO-SVR, microseconds per sample",
         ["path", "default size", "paper's pso-svr", "default", "default / paper's"],
+        rows,
+    )  # fmt: skip
+    channel_rows(trained, temps, run.rate_hz)
+
+
+def channel_rows(trained, temps: np.ndarray, rate_hz: float) -> None:
+    """The default model on all six channels of an IMU (as bench_daemon's table 3i: the same model on each, so
+    six channels carry six times the kernel terms) through the ChannelCompensator, beside it on one channel."""
+    rows = []
+    for chunk in (1, 8, 40, 4096):
+        seconds = {}
+        for channels in (CHANNELS[:1], CHANNELS):
+            best = float("inf")
+            for _ in range(3):  # the least disturbed of three (a noisy, shared machine)
+                compensator = ChannelCompensator(dict.fromkeys(channels, trained.model), rate_hz)
+                start = time.perf_counter()
+                for begin in range(0, temps.size, chunk):
+                    part = temps[begin : begin + chunk]
+                    compensator.process(dict.fromkeys(channels, np.zeros(part.size)), part)
+                best = min(best, (time.perf_counter() - start) / temps.size)
+            seconds[len(channels)] = best
+        rows.append([f"{chunk}/call", us(seconds[1]), us(seconds[6]), f"{seconds[6] / seconds[1]:.2f}x"])
+    print_table(
+        "1c. The default model on six channels (ChannelCompensator, the channels stacked) against one, microseconds per sample",
+        ["chunk", "one channel", "six channels", "six / one"],
         rows,
     )  # fmt: skip
 
