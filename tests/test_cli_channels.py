@@ -178,12 +178,12 @@ def test_manifest_trains_every_unit_in_parallel(runs, tmp_path, capsys):
         ("units:\n  - name: a\n    runs: [heat.csv, gone.csv]\n", "no run file"),
         ("units:\n  - name: a\n    runs: [heat.csv]\n  - name: a\n    runs: [cool.csv]\n", "same name 'a'"),
         ("units:\n  - name: a\n    runs: [heat.csv]\n  - name: b\n    runs: [cool.csv]\n    out: a.json\n", "same out"),
-        ("units:\n  - name: a\n    name: b\n    runs: [heat.csv]\n", "given twice"),
+        ("units:\n  - name: a\n    name: b\n    runs: [heat.csv]\n", "appears twice"),
         ("units:\n  - name: a\n    runs: [heat.csv]\n    channels: [rate_w_dph]\n", "unknown channel 'rate_w_dph'"),
         ("units:\n  - name: ../a\n    runs: [heat.csv]\n", "name '../a'"),
         ("units:\n  - runs: [heat.csv]\n", "lacks name"),
         ("unit:\n  - name: a\n", "the one key 'units'"),
-        ("units: [a, b", "not a YAML manifest"),
+        ("units: [a, b", "not valid YAML"),
     ],
 )
 def test_bad_manifest_gives_one_line(runs, tmp_path, capsys, units, words):
@@ -231,3 +231,12 @@ def test_the_readmes_three_axis_block_runs_as_written(tmp_path):
     header = (tmp_path / "imu-compensated.csv").read_text().split("\n", 1)[0].split(",")
     assert sum(name.startswith("flags_") for name in header) == 6 and "rate_x_comp_dph" in header
     assert done.stdout.count("Table 4: imu-test.csv") == 12  # fogd-train's holdout and fogd-replay, each channel
+
+
+def test_an_alias_bomb_manifest_is_one_line_not_gigabytes(runs, tmp_path, capsys):
+    bomb = "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
+        f"{chr(98 + i)}: &{chr(98 + i)} [*{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}]\n" for i in range(20)
+    )
+    path = manifest(tmp_path, runs, bomb)
+    status, _, err = main(train_cli, ["--manifest", path, "--method", "linear", "-q"], capsys)
+    assert status != 0 and "aliases (*name) are not allowed in a manifest" in err and len(err.strip().splitlines()) == 1, err

@@ -8,8 +8,8 @@ model file by one `fogd-train --manifest units.yaml --jobs N`.
         holdout: [check-1.csv]                            # optional: table 4 of each
         out: models/imu-0412.json                         # optional: <name>.json (beside the manifest or in -o DIR)
 
-Paths are relative to the manifest's directory. This module checks a parsed manifest (the command reads
-the YAML) and answers with a one-line InputError naming the unit and the key for anything it cannot use.
+Paths are relative to the manifest's directory. The YAML is read bounded and strict (fogd.core.yamlfile,
+as the daemon's config); anything unusable is a one-line InputError naming the unit and the key.
 """
 
 from __future__ import annotations
@@ -20,12 +20,14 @@ from pathlib import Path
 from typing import Any
 
 from fogd.core.columns import CHANNELS
-from fogd.errors import InputError
+from fogd.core.yamlfile import YamlFileError, read_yaml
+from fogd.errors import InputError, NoInputError, describe_os_error
 
 UNIT_KEYS = {"name", "runs", "channels", "holdout", "out"}
 REQUIRED_KEYS = {"name", "runs"}
 NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")  # also a file name: <name>.json
 MAX_UNITS = 1000
+MAX_MANIFEST_BYTES = 1 << 20
 
 
 @dataclass
@@ -37,6 +39,17 @@ class Unit:
     out: str
     channels: list[str] | None = None
     holdout: list[str] = field(default_factory=list)
+
+
+def read_manifest(path: str, out_dir: str | None = None) -> list[Unit]:
+    """The units of the manifest at `path`; NoInputError when it cannot be read, InputError when unusable."""
+    try:
+        document = read_yaml(path, "a manifest", MAX_MANIFEST_BYTES)
+    except OSError as error:
+        raise NoInputError(f"cannot read manifest: {describe_os_error(error)}") from None
+    except YamlFileError as error:
+        raise InputError(str(error)) from None
+    return units_from_manifest(document, path, out_dir)
 
 
 def units_from_manifest(document: Any, source: str, out_dir: str | None = None) -> list[Unit]:

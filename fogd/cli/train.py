@@ -7,8 +7,6 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-import yaml
-
 from fogd.calibration.channels import (
     ChannelFit,
     ChannelJob,
@@ -28,10 +26,10 @@ from fogd.calibration.selection import (
     input_sets,
 )
 from fogd.calibration.training import TrainConfig
-from fogd.calibration.units import Unit, units_from_manifest
+from fogd.calibration.units import Unit, read_manifest
 from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, run
 from fogd.core import modelfile
-from fogd.core.atomic import read_regular, refuse_inputs
+from fogd.core.atomic import refuse_inputs
 from fogd.core.columns import BLOCK_S, CHANNELS
 from fogd.core.estimator import EstimatorSettings
 from fogd.core.inputs import (
@@ -46,9 +44,7 @@ from fogd.core.runio import read_run
 from fogd.errors import (
     FogdError,
     InputError,
-    NoInputError,
     UsageError,
-    describe_os_error,
 )
 
 PROG = "fogd-train"
@@ -262,7 +258,7 @@ def _units(args: argparse.Namespace) -> list[Unit]:
             raise UsageError("--manifest gives every unit's runs, holdout runs and name; give no RUN.csv, --holdout or --name")
         if args.output and not Path(args.output).is_dir():
             raise UsageError(f"-o {args.output}: with --manifest, -o is the directory for the units' <name>.json")
-        units = units_from_manifest(_read_manifest(args.manifest), args.manifest, args.output)
+        units = read_manifest(args.manifest, args.output)
         for unit in units:
             unit.channels = unit.channels or channels
         return units
@@ -281,37 +277,6 @@ def _channel_list(text: str | None) -> list[str] | None:
     if bad or not names:
         raise UsageError(f"--channels {text!r}: channels are {', '.join(CHANNELS)} (comma-separated)")
     return names
-
-
-MAX_MANIFEST_BYTES = 1 << 20
-
-
-def _read_manifest(path: str) -> object:
-    """The manifest's YAML (a mapping, a key given twice refused), or a one-line InputError."""
-    try:
-        data = read_regular(path, MAX_MANIFEST_BYTES)
-    except OSError as error:
-        raise NoInputError(f"cannot read manifest: {describe_os_error(error)}") from None
-    if len(data) > MAX_MANIFEST_BYTES:
-        raise InputError(f"{path}: larger than {MAX_MANIFEST_BYTES // 1024} KiB; not a manifest")
-    try:
-        return yaml.load(data, Loader=_ManifestLoader)  # a SafeLoader
-    except yaml.YAMLError as error:
-        mark = getattr(error, "problem_mark", None)
-        line = f":{mark.line + 1}" if mark is not None else ""
-        problem = getattr(error, "problem", None) or str(error).splitlines()[0]
-        raise InputError(f"{path}{line}: not a YAML manifest ({problem})") from None
-
-
-class _ManifestLoader(yaml.SafeLoader):
-    """YAML's safe loader refusing a key given twice (it would keep the last silently)."""
-
-    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
-        keys = [self.construct_object(key, deep=True) for key, _ in node.value]
-        twice = next((key for i, key in enumerate(keys) if key in keys[:i]), None)
-        if twice is not None:
-            raise yaml.constructor.ConstructorError(None, None, f"key {str(twice)[:40]!r} given twice", node.start_mark)
-        return super().construct_mapping(node, deep=deep)
 
 
 def _reference(text: str) -> str | float:

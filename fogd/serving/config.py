@@ -18,13 +18,11 @@ import reprlib
 from dataclasses import dataclass
 from typing import Any, Callable
 
-import yaml
-
 from fogd import protocols
-from fogd.protocols import kvh
-from fogd.core.atomic import read_regular
 from fogd.core.numbers import number_in, whole_number
+from fogd.core.yamlfile import YamlFileError, read_yaml
 from fogd.errors import ConfigError, describe_os_error
+from fogd.protocols import kvh
 
 CONFIG_DIR = "/etc/fogd"
 CONFIG_DIR_ENV = "FOGD_CONFIG_DIR"
@@ -32,8 +30,6 @@ DEFAULT_INSTANCE = "fogd"
 DEFAULT_MODEL = "/var/lib/fogd/model.json"
 RUNTIME_DIR = "/run/fogd"
 MAX_CONFIG_BYTES = 1 << 20
-MAX_YAML_NODES = 10_000
-MAX_SCALAR_CHARS = 1024
 AXES = ("x", "y", "z")
 KVH_ONLY = ("rotfmt", "angle_unit", "linfmt", "lin_unit", "temp_unit", "query_settings")  # a KVH unit's settings
 OUT_FORMATS = ("same", "fogd", "csv", "jsonl")
@@ -169,21 +165,11 @@ def default_config_path(instance: str | None) -> str | None:
 def load(path: str) -> dict[str, Any]:
     """Settings from a YAML file, each checked like its command-line option; ConfigError names the key."""
     try:
-        text = read_regular(path, MAX_CONFIG_BYTES)
+        document = read_yaml(path, "a fogd config", MAX_CONFIG_BYTES)
     except OSError as error:
         raise ConfigError(f"cannot read config {describe_os_error(error)}") from None
-    if len(text) > MAX_CONFIG_BYTES:
-        raise ConfigError(f"{path}: larger than {MAX_CONFIG_BYTES // 1024} KiB; not a fogd config")
-    try:
-        document = yaml.load(text, Loader=_ConfigLoader)  # noqa: S506 (a SafeLoader, bounded)
-    except ValueError as error:  # Python's own limits (a huge integer) surfacing through the constructor
-        raise ConfigError(f"{path}: not a fogd config ({str(error)[:80]})") from None
-    except yaml.YAMLError as error:
-        where = getattr(error, "problem_mark", None)
-        line = f":{where.line + 1}" if where is not None else ""
-        raise ConfigError(f"{path}{line}: not valid YAML ({getattr(error, 'problem', None) or error})") from None
-    except RecursionError:
-        raise ConfigError(f"{path}: nested too deeply; not a fogd config") from None
+    except YamlFileError as error:
+        raise ConfigError(str(error)) from None
     if document is None:
         return {}
     if not isinstance(document, dict):
@@ -249,36 +235,6 @@ def _show(value: Any) -> str:
 _SHORT = reprlib.Repr()
 _SHORT.maxstring = _SHORT.maxother = _SHORT.maxlong = 40
 _SHORT.maxlevel = 2
-
-
-class _ConfigLoader(yaml.SafeLoader):
-    """YAML's safe loader, bounded: no aliases (an alias bomb expands a few lines into gigabytes), at most
-    MAX_YAML_NODES nodes, scalars of at most MAX_SCALAR_CHARS characters, no key given twice."""
-
-    def compose_node(self, parent: Any, index: Any) -> Any:
-        if self.check_event(yaml.AliasEvent):
-            raise yaml.composer.ComposerError(None, None, "aliases (*name) are not allowed in a fogd config",
-                                              self.peek_event().start_mark)  # fmt: skip
-        self._nodes = getattr(self, "_nodes", 0) + 1
-        if self._nodes > MAX_YAML_NODES:
-            raise yaml.composer.ComposerError(None, None, f"more than {MAX_YAML_NODES} values; not a fogd config",
-                                              self.peek_event().start_mark)  # fmt: skip
-        node = super().compose_node(parent, index)
-        if isinstance(node, yaml.ScalarNode) and len(node.value) > MAX_SCALAR_CHARS:
-            raise yaml.composer.ComposerError(None, None, f"a value longer than {MAX_SCALAR_CHARS} characters",
-                                              node.start_mark)  # fmt: skip
-        return node
-
-    def construct_mapping(self, node: Any, deep: bool = False) -> Any:
-        seen: set[str] = set()
-        for key_node, _ in node.value:
-            if isinstance(key_node, yaml.ScalarNode):
-                if key_node.value in seen:
-                    raise yaml.constructor.ConstructorError(
-                        None, None, f"key {key_node.value[:40]!r} appears twice", key_node.start_mark
-                    )
-                seen.add(key_node.value)
-        return super().construct_mapping(node, deep=deep)
 
 
 def merge(config: dict[str, Any], command_line: dict[str, Any]) -> dict[str, Any]:
