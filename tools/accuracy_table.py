@@ -11,6 +11,7 @@ fallback column is the share of the held-out samples that the domain guard sent 
 
     python tools/accuracy_table.py            # the README's tables (PSO 60 x 100; about an hour on 2 cores)
     python tools/accuracy_table.py --quick    # PSO 20 x 20 (and 10 x 10 inside auto), about 15 minutes
+    python tools/accuracy_table.py --quick --hysteresis-dph 0   # the gyro without its play hysteresis
 """
 
 from __future__ import annotations
@@ -59,7 +60,8 @@ def simulated_run(profile: str, seed: int, rate_hz: float, params) -> Run:
 
 
 def evaluate(args, thermal: str, resolution_c: float, sensor_hz: float) -> dict[str, list]:
-    params = params_for("navigation", thermal, sensor_resolution_c=resolution_c, sensor_rate_hz=sensor_hz)
+    extra = {} if args.hysteresis_dph is None else {"hysteresis_dph": args.hysteresis_dph}
+    params = params_for("navigation", thermal, sensor_resolution_c=resolution_c, sensor_rate_hz=sensor_hz, **extra)
     calibration = [simulated_run(name, args.seed + i, args.rate_hz, params) for i, name in enumerate(CALIBRATION)]
     held_out = [simulated_run(name, args.seed + 100 + i, args.rate_hz, params) for i, name in enumerate(HELD_OUT)]
     size = (20, 20) if args.quick else (60, 100)
@@ -108,6 +110,9 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--thermal", choices=THERMALS, action="append", help="only this coil structure (repeatable)")
     parser.add_argument("--sensor", choices=("fine", "whole"), action="append", help="only this sensor (repeatable)")
+    parser.add_argument("--hysteresis-dph", type=float, default=None,
+                        help="the simulated gyro's play hysteresis, deg/h (default: the navigation preset's, 0.001); "
+                             "0 shows what the thermal model alone leaves")
     parser.add_argument("--quick", action="store_true", help="PSO 20 x 20 instead of the paper's 60 x 100, 10 x 10 inside auto")
     args = parser.parse_args()
     for thermal in args.thermal or THERMALS:
@@ -116,8 +121,9 @@ def main() -> None:
                 continue
             print(f"# {thermal} coil, {sensor} sensor", flush=True)
             rows = evaluate(args, thermal, resolution_c, sensor_hz)
+            hysteresis = "" if args.hysteresis_dph is None else f", hysteresis {args.hysteresis_dph:g} deg/h"
             print_table(f"Navigation-grade gyro, {thermal} coil, {sensor} sensor; {args.rate_hz:g} Hz, seed {args.seed}"
-                        f"{', PSO 20 x 20' if args.quick else ''}: std of 100 s block means after 600 s / noise floor",
+                        f"{', PSO 20 x 20' if args.quick else ''}{hysteresis}: std of 100 s block means after 600 s / noise floor",
                         rows)  # fmt: skip
 
 
