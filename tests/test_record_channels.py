@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 from test_emulator import stream
 
-from fogd.cli.record import Recorder, chosen_channels
 from fogd.core.columns import CHANNELS
 from fogd.core.runio import read_run
 from fogd.errors import UsageError
 from fogd.protocols import get
 from fogd.protocols.base import ALL_AXES, Frame
 from fogd.protocols.lexer import Lexer
+from fogd.serving.recorder import Recorder, chosen_channels
 from fogd.simulation.emulator import Emulator, RunSource
 
 KVH = get("kvh-a")

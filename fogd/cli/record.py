@@ -17,21 +17,18 @@ import signal
 import sys
 import threading
 import time
-from typing import IO, Sequence
-
-import numpy as np
+from typing import Sequence
 
 from fogd import protocols
 from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, run
-from fogd.core.columns import ACCEL_CHANNELS, CHANNELS, GYRO_CHANNELS, RUN_COLUMNS
-from fogd.core.estimator import EstimatorSettings, TempRateEstimator
+from fogd.core.columns import CHANNELS
 from fogd.core.numbers import positive_float, positive_int
 from fogd.errors import DeviceError, UsageError, describe_os_error
-from fogd.protocols.base import Frame, Protocol
 from fogd.protocols.kvh import ANGLE_UNITS, LIN_UNITS, LINFMTS, ROTFMTS, TEMP_UNITS
 from fogd.protocols.lexer import Lexer
-from fogd.serving.daemon import RING_CAPACITY, SampleClock, TemperatureHold
+from fogd.serving.daemon import RING_CAPACITY
 from fogd.serving.reader import Reader
+from fogd.serving.recorder import Recorder, chosen_channels
 from fogd.serving.ring import Ring
 from fogd.serving.serialio import open_port
 
@@ -82,115 +79,6 @@ def parser() -> ArgumentParser:
                    help="seconds between status lines when stderr is not a terminal (a terminal gets a live line)")  # fmt: skip
     p.add_argument("-q", "--quiet", action="store_true", help="no status line")
     return p
-
-
-class Recorder:
-    """Turns batches of ring frames into CSV rows and keeps what the status line shows."""
-
-    def __init__(self, stream: IO[str], axis: int, rate_hz: float, decimate: int = 1,
-                 channels: Sequence[str] | None = None) -> None:  # fmt: skip
-        self.stream = stream
-        self.decimate = decimate
-        self.channels = list(channels) if channels else None
-        width = 3 if self.channels is None else 2 + len(self.channels)
-        self._pending = tuple(np.empty(0) for _ in range(width))  # samples waiting for a full group of `decimate`
-        self.axis = axis
-        self.temperature = TemperatureHold()
-        self.clock = SampleClock(rate_hz)
-        self.temp_rate = TempRateEstimator(EstimatorSettings(), rate_hz / decimate)  # one estimate per row written
-        self.rows = 0
-        self.skipped_no_temp = 0
-        self.temp_c = float("nan")
-        self.temp_rate_cps = float("nan")
-
-    def header(self) -> str:
-        return ",".join(RUN_COLUMNS if self.channels is None else ("t_s", *self.channels, "temp_c")) + "\n"
-
-    def write(self, batch: tuple[list[Frame], list[float]]) -> None:
-        if self.channels is not None:
-            self._write_channels(batch)
-            return
-        samples = self.temperature.rate_samples(*batch, self.axis)
-        temp_c = np.array(samples.temp_c, dtype=np.float64)
-        t_s = np.array(self.clock.times(samples.device_s), dtype=np.float64)
-        rate_dph = np.array(samples.rate_dph, dtype=np.float64)
-        known = ~np.isnan(temp_c)
-        self.skipped_no_temp += int((~known).sum())
-        if not known.any():
-            return
-        t_s, rate_dph, temp_c = t_s[known], rate_dph[known], temp_c[known]
-        if self.decimate > 1:
-            t_s, rate_dph, temp_c = self._averaged(t_s, rate_dph, temp_c)
-            if not t_s.size:
-                return
-        # repr keeps every value exactly as decoded, so a replay of this file sees what the wire carried
-        self.stream.write("".join(f"{t:.6f},{r!r},{c!r}\n" for t, r, c in zip(t_s.tolist(), rate_dph.tolist(), temp_c.tolist())))
-        self.rows += temp_c.size
-        finite = temp_c[np.isfinite(temp_c)]
-        if finite.size:
-            self.temp_rate_cps = float(self.temp_rate.update(finite)[-1])
-            self.temp_c = float(finite[-1])
-
-    def _write_channels(self, batch: tuple[list[Frame], list[float]]) -> None:
-        """Every chosen channel of each rate frame; one not present and valid in a frame is NaN."""
-        frames = batch[0]
-        samples = self.temperature.rate_samples(*batch, 2)
-        temp_c = np.array(samples.temp_c, dtype=np.float64)
-        t_s = np.array(self.clock.times(samples.device_s), dtype=np.float64)
-        getters = [_channel_getter(name) for name in self.channels]
-        values = np.array([[get(frames[row]) for get in getters] for row in samples.rows], dtype=np.float64)
-        known = ~np.isnan(temp_c)
-        self.skipped_no_temp += int((~known).sum())
-        if not known.any():
-            return
-        columns = (t_s[known], *values[known].T, temp_c[known])
-        if self.decimate > 1:
-            columns = self._averaged(*columns)
-            if not columns[0].size:
-                return
-        # repr keeps every value exactly as decoded, so a replay of this file sees what the wire carried
-        rows = zip(*(column.tolist() for column in columns))
-        self.stream.write("".join(f"{row[0]:.6f}," + ",".join(map(repr, row[1:])) + "\n" for row in rows))
-        temps = columns[-1]
-        self.rows += temps.size
-        finite = temps[np.isfinite(temps)]
-        if finite.size:
-            self.temp_rate_cps = float(self.temp_rate.update(finite)[-1])
-            self.temp_c = float(finite[-1])
-
-    def _averaged(self, *columns: np.ndarray) -> tuple[np.ndarray, ...]:
-        """Means of whole groups of `decimate` samples; the rest waits for the next batch."""
-        joined = [np.concatenate((pending, column)) for pending, column in zip(self._pending, columns)]
-        whole = joined[0].size // self.decimate * self.decimate
-        self._pending = tuple(column[whole:] for column in joined)
-        return tuple(column[:whole].reshape(-1, self.decimate).mean(axis=1) for column in joined)
-
-
-def _channel_getter(name: str):
-    """A function of a frame giving channel `name` (deg/h or g), NaN where the frame lacks it or marks it invalid."""
-    nan = float("nan")
-    if name in GYRO_CHANNELS:
-        axis = GYRO_CHANNELS.index(name)
-        return lambda frame: frame.rate_dph[axis] if frame.axis_valid[axis] and frame.axis_present[axis] else nan
-    axis = ACCEL_CHANNELS.index(name)
-    return lambda frame: (frame.accel_g[axis] if frame.accel_g is not None and frame.accel_valid[axis]
-                          and frame.accel_present[axis] else nan)  # fmt: skip
-
-
-def chosen_channels(text: str, protocol: Protocol) -> list[str]:
-    """--channels: 'all' (what `protocol` can carry) or a comma-separated list, in CHANNELS' order."""
-    carried = [name for axis, name in enumerate(GYRO_CHANNELS) if protocol.gyro_axes[axis]]
-    carried += [name for axis, name in enumerate(ACCEL_CHANNELS) if protocol.accel_axes[axis]]
-    if text.strip() == "all":
-        return carried
-    names = [name.strip() for name in text.split(",") if name.strip()]
-    unknown = [name for name in names if name not in CHANNELS]
-    if unknown or not names:
-        raise UsageError(f"--channels: unknown channel(s) {', '.join(unknown) or repr(text)}; use 'all' or some of {','.join(CHANNELS)}")
-    missing = [name for name in names if name not in carried]
-    if missing:
-        raise UsageError(f"--channels: {protocol.name} frames do not carry {', '.join(missing)} (they carry {','.join(carried)})")
-    return [name for name in CHANNELS if name in names]
 
 
 def status_line(recorder: Recorder, reader: Reader, ring: Ring) -> str:
