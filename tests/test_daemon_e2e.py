@@ -132,7 +132,11 @@ class Emu:
 
 def start_fogd(tmp_path: Path, port: str, model: Path, *args: str) -> Fogd:
     fogd = Fogd(tmp_path, "--port", port, "--model", str(model), "--rate-hz", str(RATE_HZ), "--status-interval-s", "60", *args)
-    fogd.wait_for("fogd.daemon: reading")
+    try:
+        fogd.wait_for("fogd.daemon: reading")
+    except BaseException:
+        fogd.kill()  # the caller never gets it to stop: a daemon left running outlives the suite
+        raise
     return fogd
 
 
