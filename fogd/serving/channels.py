@@ -76,12 +76,15 @@ def plan(models: ChannelModels, protocol: Protocol, axis: int) -> ChannelPlan:
         raise ConfigError(f"key 'model': {models.name} compensates {', '.join(missing)}, which protocol "
                           f"{protocol.name} does not carry (it carries {', '.join(carried)})")  # fmt: skip
     covered, passed = models.split(carried)
-    sources = tuple((channel in ACCEL_CHANNELS, _axis(channel)) for channel in covered)
+    sources = tuple(source(channel) for channel in covered)
     return ChannelPlan(covered, sources, passed, carried, single=False)
 
 
-def _axis(channel: str) -> int:
-    return (GYRO_CHANNELS.index(channel) if channel in GYRO_CHANNELS else ACCEL_CHANNELS.index(channel))
+def source(channel: str) -> tuple[bool, int]:
+    """Where `channel` is in a frame: (an accelerometer?, axis 0..2)."""
+    if channel in GYRO_CHANNELS:
+        return False, GYRO_CHANNELS.index(channel)
+    return True, ACCEL_CHANNELS.index(channel)
 
 
 def method(models: ChannelModels) -> str:

@@ -71,28 +71,16 @@ _OUT_OF_DOMAIN, _CLAMPED = int(Flag.OUT_OF_DOMAIN), int(Flag.CLAMPED)
 
 
 @dataclass
-class RateSamples:
-    """The rate frames of a batch, column by column (Python lists, one entry per rate frame)."""
-
-    rows: list[int]  # index of each rate frame in the batch
-    rate_dph: list[float]  # the compensated axis
-    usable: list[bool]  # the axis present and valid
-    device_s: list[float | None]  # the device's time, if the protocol has one
-    temp_c: list[float]  # the newest temperature received at or before the frame (NaN: none yet)
-    temp_age_s: list[float]  # how long before the frame that temperature arrived
-
-
-@dataclass
 class ChannelSamples:
     """The rate frames of a batch for the channel compensator: per channel its values and usability (lists,
     one entry per rate frame), and the columns every channel shares."""
 
-    rows: list[int]
+    rows: list[int]  # index of each rate frame in the batch
     values: list[list[float]]  # per compensated channel
     usable: list[list[bool]]  # per compensated channel: present and valid in the frame
-    device_s: list[float | None]
-    temp_c: list[float]
-    temp_age_s: list[float]
+    device_s: list[float | None]  # the device's time, if the protocol has one
+    temp_c: list[float]  # the newest temperature received at or before the frame (NaN: none yet)
+    temp_age_s: list[float]  # how long before the frame that temperature arrived
 
 
 _NAN = float("nan")
@@ -106,29 +94,10 @@ class TemperatureHold:
         self.temp_c = math.nan
         self.rx_s = time.monotonic()
 
-    def rate_samples(self, frames: list[Frame], t_rx_s: list[float], axis: int) -> RateSamples:
-        """The frames that carry a rate, as columns for the compensator, each with the temperature held for it."""
-        samples = RateSamples([], [], [], [], [], [])
-        rows, rates, usable, device_s = samples.rows, samples.rate_dph, samples.usable, samples.device_s
-        temps_c, ages_s = samples.temp_c, samples.temp_age_s
-        held_c, held_rx_s = self.temp_c, self.rx_s
-        for index, frame in enumerate(frames):  # one pass, no numpy: usually a single frame
-            kind = frame.kind
-            if kind in TEMP_KINDS and frame.temp_c is not None:
-                held_c, held_rx_s = frame.temp_c, t_rx_s[index]
-            if kind in RATE_KINDS:
-                rows.append(index)
-                rates.append(frame.rate_dph[axis])
-                usable.append(frame.axis_valid[axis] and frame.axis_present[axis])
-                device_s.append(frame.t_s)
-                temps_c.append(held_c)
-                ages_s.append(t_rx_s[index] - held_rx_s)
-        self.temp_c, self.rx_s = held_c, held_rx_s
-        return samples
-
     def channel_samples(self, frames: list[Frame], t_rx_s: list[float], sources: tuple[tuple[bool, int], ...]) -> ChannelSamples:
-        """`rate_samples` for several channels: `sources` says where each is in a frame ((accelerometer?, axis));
-        an accelerometer a frame lacks (a fogd rate frame) is NaN and unusable."""
+        """The frames that carry a rate, as columns for the compensator, each with the temperature held for it:
+        `sources` says where each channel is in a frame ((accelerometer?, axis)); an accelerometer a frame lacks
+        (a fogd rate frame) is NaN and unusable."""
         values: list[list[float]] = [[] for _ in sources]
         usable: list[list[bool]] = [[] for _ in sources]
         samples = ChannelSamples([], values, usable, [], [], [])

@@ -30,13 +30,13 @@ import numpy as np
 import serial
 
 from fogd.core.channels import output_columns
-from fogd.core.columns import ACCEL_CHANNELS, CHANNELS, GYRO_CHANNELS, OUTPUT_FORMATS
+from fogd.core.columns import CHANNELS, OUTPUT_FORMATS
 from fogd.core.compensator import Compensated
 from fogd.errors import DeviceError, describe_os_error
 from fogd.protocols import Protocol
 from fogd.protocols.base import NAN, Frame
 from fogd.protocols.fogdbin import SEQ_MODULUS, CompImu, FogdProtocol, encode_comp_imu
-from fogd.serving.channels import ChannelPlan
+from fogd.serving.channels import ChannelPlan, source
 from fogd.serving.ring import RATE_KINDS
 from fogd.serving.serialio import describe_open_error
 
@@ -170,7 +170,7 @@ class Formatter:
         channels = batch.channels or {}
         columns = []
         for name in self.plan.carried:
-            accel, axis = name in ACCEL_CHANNELS, _axis(name)
+            accel, axis = source(name)
             comp = channels.get(name)
             if comp is None:
                 columns.append((accel, axis, None, [], [], []))
@@ -238,7 +238,7 @@ class Formatter:
         """One fogd compensated-IMU frame (type 05) per rate sample: six channels, each with its flags."""
         channels = batch.channels or {}
         comp = batch.comp
-        covered = [(name in ACCEL_CHANNELS, _axis(name), name in channels) for name in CHANNELS]
+        covered = [(*source(name), name in channels) for name in CHANNELS]
         per_channel = {name: (_values(one.comp_dph), _values(one.rate_comp_dph), _values(one.flags))
                        for name, one in channels.items()}  # fmt: skip
         pieces = []
@@ -274,10 +274,6 @@ def _reading(frame: Frame, accel: bool, axis: int) -> float:
     if not accel:
         return frame.rate_dph[axis]
     return frame.accel_g[axis] if frame.accel_g is not None else NAN
-
-
-def _axis(channel: str) -> int:
-    return GYRO_CHANNELS.index(channel) if channel in GYRO_CHANNELS else ACCEL_CHANNELS.index(channel)
 
 
 def _channel_columns(plan: ChannelPlan) -> tuple[list[str], str]:

@@ -13,6 +13,7 @@ from fogd.core.columns import ACCEL_CHANNELS, CHANNELS, GYRO_CHANNELS, RUN_COLUM
 from fogd.core.estimator import EstimatorSettings, TempRateEstimator
 from fogd.errors import UsageError
 from fogd.protocols.base import Frame, Protocol
+from fogd.serving.channels import source
 from fogd.serving.daemon import SampleClock, TemperatureHold
 
 
@@ -27,6 +28,7 @@ class Recorder:
         width = 3 if self.channels is None else 2 + len(self.channels)
         self._pending = tuple(np.empty(0) for _ in range(width))  # samples waiting for a full group of `decimate`
         self.axis = axis
+        self._sources = ((False, axis),) if self.channels is None else tuple(source(name) for name in self.channels)
         self.temperature = TemperatureHold()
         self.clock = SampleClock(rate_hz)
         self.temp_rate = TempRateEstimator(EstimatorSettings(), rate_hz / decimate)  # one estimate per row written
@@ -39,43 +41,19 @@ class Recorder:
         return ",".join(RUN_COLUMNS if self.channels is None else ("t_s", *self.channels, "temp_c")) + "\n"
 
     def write(self, batch: tuple[list[Frame], list[float]]) -> None:
+        """One row per rate frame with a temperature held for it; a chosen channel a frame lacks or marks
+        invalid is NaN (the single axis is written as the wire carried it)."""
+        samples = self.temperature.channel_samples(*batch, self._sources)
+        temp_c = np.array(samples.temp_c, dtype=np.float64)
+        t_s = np.array(self.clock.times(samples.device_s), dtype=np.float64)
+        values = np.array(samples.values, dtype=np.float64).reshape(len(self._sources), -1)
         if self.channels is not None:
-            self._write_channels(batch)
-            return
-        samples = self.temperature.rate_samples(*batch, self.axis)
-        temp_c = np.array(samples.temp_c, dtype=np.float64)
-        t_s = np.array(self.clock.times(samples.device_s), dtype=np.float64)
-        rate_dph = np.array(samples.rate_dph, dtype=np.float64)
+            values[~np.array(samples.usable, dtype=bool).reshape(values.shape)] = np.nan
         known = ~np.isnan(temp_c)
         self.skipped_no_temp += int((~known).sum())
         if not known.any():
             return
-        t_s, rate_dph, temp_c = t_s[known], rate_dph[known], temp_c[known]
-        if self.decimate > 1:
-            t_s, rate_dph, temp_c = self._averaged(t_s, rate_dph, temp_c)
-            if not t_s.size:
-                return
-        # repr keeps every value exactly as decoded, so a replay of this file sees what the wire carried
-        self.stream.write("".join(f"{t:.6f},{r!r},{c!r}\n" for t, r, c in zip(t_s.tolist(), rate_dph.tolist(), temp_c.tolist())))
-        self.rows += temp_c.size
-        finite = temp_c[np.isfinite(temp_c)]
-        if finite.size:
-            self.temp_rate_cps = float(self.temp_rate.update(finite)[-1])
-            self.temp_c = float(finite[-1])
-
-    def _write_channels(self, batch: tuple[list[Frame], list[float]]) -> None:
-        """Every chosen channel of each rate frame; one not present and valid in a frame is NaN."""
-        frames = batch[0]
-        samples = self.temperature.rate_samples(*batch, 2)
-        temp_c = np.array(samples.temp_c, dtype=np.float64)
-        t_s = np.array(self.clock.times(samples.device_s), dtype=np.float64)
-        getters = [_channel_getter(name) for name in self.channels]
-        values = np.array([[get(frames[row]) for get in getters] for row in samples.rows], dtype=np.float64)
-        known = ~np.isnan(temp_c)
-        self.skipped_no_temp += int((~known).sum())
-        if not known.any():
-            return
-        columns = (t_s[known], *values[known].T, temp_c[known])
+        columns = (t_s[known], *values[:, known], temp_c[known])
         if self.decimate > 1:
             columns = self._averaged(*columns)
             if not columns[0].size:
@@ -96,17 +74,6 @@ class Recorder:
         whole = joined[0].size // self.decimate * self.decimate
         self._pending = tuple(column[whole:] for column in joined)
         return tuple(column[:whole].reshape(-1, self.decimate).mean(axis=1) for column in joined)
-
-
-def _channel_getter(name: str):
-    """A function of a frame giving channel `name` (deg/h or g), NaN where the frame lacks it or marks it invalid."""
-    nan = float("nan")
-    if name in GYRO_CHANNELS:
-        axis = GYRO_CHANNELS.index(name)
-        return lambda frame: frame.rate_dph[axis] if frame.axis_valid[axis] and frame.axis_present[axis] else nan
-    axis = ACCEL_CHANNELS.index(name)
-    return lambda frame: (frame.accel_g[axis] if frame.accel_g is not None and frame.accel_valid[axis]
-                          and frame.accel_present[axis] else nan)  # fmt: skip
 
 
 def chosen_channels(text: str, protocol: Protocol) -> list[str]:

@@ -13,7 +13,6 @@ import os
 import time
 from typing import Any
 
-from fogd import __version__
 from fogd.errors import DeviceError, describe_os_error
 
 log = logging.getLogger("fogd.stats")
