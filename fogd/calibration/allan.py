@@ -39,9 +39,21 @@ class AllanResult:
     @property
     def bias_instability_text(self) -> str:
         """'0.0123 deg/h at tau = 409.6 s', or 'not reached (curve still falling at tau = 409.6 s)'."""
+        return self.bias_instability_in("deg/h")
+
+    def bias_instability_in(self, unit: str) -> str:
+        """bias_instability_text for a rate in `unit` (the curve is in the rate's unit: g for an accelerometer)."""
         if self.bias_instability_dph is None:
             return f"not reached (curve still falling at tau = {self.bias_instability_tau_s:.4g} s)"
-        return f"{self.bias_instability_dph:.4g} deg/h at tau = {self.bias_instability_tau_s:.4g} s"
+        return f"{self.bias_instability_dph:.4g} {unit} at tau = {self.bias_instability_tau_s:.4g} s"
+
+
+def white_noise(result: AllanResult, unit: str = "deg/h") -> tuple[str, float]:
+    """(name with its unit, value) of the white noise read off the -1/2 slope: a gyro's angle random walk in
+    deg/sqrt(h), or for a rate in another unit (an accelerometer's g) its density sigma(1 s) in unit/sqrt(Hz)."""
+    if unit == "deg/h":
+        return "ARW (deg/sqrt h)", result.arw_dpsh
+    return f"noise ({unit}/sqrt Hz)", 60.0 * result.arw_dpsh  # arw_dpsh is sigma(1 s) / 60
 
 
 def octave_taus(samples: int, rate_hz: float, max_fraction: float = MAX_TAU_FRACTION) -> np.ndarray:
@@ -89,23 +101,24 @@ def analyse(rate_dph: np.ndarray, rate_hz: float) -> AllanResult:
     )
 
 
-def summary_lines(results: dict[str, AllanResult]) -> list[str]:
+def summary_lines(results: dict[str, AllanResult], unit: str = "deg/h") -> list[str]:
     """A small table: one row per labelled curve, then a line saying which curves did not reach their bias
-    instability."""
-    lines = [f"{'Allan deviation':<24} {'ARW (deg/sqrt h)':>17} {'bias instab. (deg/h)':>21} {'at tau (s)':>11}"]
+    instability; `unit` is the rate's (g for an accelerometer)."""
+    noise = white_noise(next(iter(results.values())), unit)[0] if results else "ARW (deg/sqrt h)"
+    lines = [f"{'Allan deviation':<24} {noise:>17} {f'bias instab. ({unit})':>21} {'at tau (s)':>11}"]
     for label, result in results.items():
         bias = "not reached" if result.bias_instability_dph is None else f"{result.bias_instability_dph:.4g}"
-        lines.append(f"{label:<24} {result.arw_dpsh:>17.4g} {bias:>21} {result.bias_instability_tau_s:>11.4g}")
+        lines.append(f"{label:<24} {white_noise(result, unit)[1]:>17.4g} {bias:>21} {result.bias_instability_tau_s:>11.4g}")
     falling: dict[str, list[str]] = {}  # one line per tau: the curves usually share their tau grid
     for label, result in results.items():
         if result.bias_instability_dph is None:
-            falling.setdefault(result.bias_instability_text, []).append(label)
+            falling.setdefault(result.bias_instability_in(unit), []).append(label)
     return lines + [f"bias instability: {text} for {', '.join(labels)}" for text, labels in falling.items()]
 
 
-def plot(path: str, results: dict[str, AllanResult], title: str) -> None:
-    """Log-log figure of the curves, written as PNG at `path` (matplotlib, Agg backend); DeviceError when it
-    cannot be written."""
+def plot(path: str, results: dict[str, AllanResult], title: str, unit: str = "deg/h") -> None:
+    """Log-log figure of the curves of a rate in `unit` (g for an accelerometer), written as PNG at `path`
+    (matplotlib, Agg backend); DeviceError when it cannot be written."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -113,11 +126,13 @@ def plot(path: str, results: dict[str, AllanResult], title: str) -> None:
 
     figure, axis = plt.subplots(figsize=(7.0, 4.5))
     for label, result in results.items():
-        bias = "not reached" if result.bias_instability_dph is None else f"{result.bias_instability_dph:.3g} deg/h"
+        bias = "not reached" if result.bias_instability_dph is None else f"{result.bias_instability_dph:.3g} {unit}"
+        name, value = white_noise(result, unit)
+        quantity, _, noise_unit = name.partition(" (")
         axis.loglog(result.tau_s, result.adev_dph, "o-", ms=3,
-                    label=f"{label} (ARW {result.arw_dpsh:.3g} deg/sqrt h, BI {bias})")  # fmt: skip
+                    label=f"{label} ({quantity} {value:.3g} {noise_unit.rstrip(')')}, BI {bias})")  # fmt: skip
     axis.set_xlabel("tau (s)")
-    axis.set_ylabel("Allan deviation (deg/h)")
+    axis.set_ylabel(f"Allan deviation ({unit})")
     axis.set_title(title)
     axis.grid(True, which="both", alpha=0.4)
     axis.legend(fontsize=8)

@@ -26,7 +26,7 @@ from fogd.calibration.models import METHODS
 from fogd.calibration.models.folds import MIN_RUNS_LEFT_OUT, drift_rmse
 from fogd.calibration.replay import replay, replay_table
 from fogd.calibration.selection import select, table_lines
-from fogd.calibration.tables import error_table
+from fogd.calibration.tables import epsilon_key, error_table, unit_named
 from fogd.calibration.training import TrainConfig, Trained, for_sensor, prepare, train
 from fogd.core import modelfile
 from fogd.core.columns import ACCEL_CHANNELS, SINGLE_CHANNEL
@@ -171,7 +171,7 @@ def _fit(job: ChannelJob, settings: Settings, result: ChannelFit) -> None:
     unit = channel_unit(job.channel)
     runs = job.runs
     if settings.auto:
-        best, candidates = select(runs, config, settings.sets, log=say.err if settings.log else None)
+        best, candidates = select(runs, config, settings.sets, log=say.err if settings.log else None, unit=unit)
         result.label = f"auto: {best.label}"
         result.trained = {result.label: best.trained}
         result.chosen = best.trained
@@ -181,9 +181,9 @@ def _fit(job: ChannelJob, settings: Settings, result: ChannelFit) -> None:
             "chosen": best.row(),
             "candidates": [candidate.row() for candidate in candidates],
         }
-        result.selection = table_lines(candidates, best, markdown=True)
+        result.selection = table_lines(candidates, best, markdown=True, unit=unit)
         say.out(f"\nModel selection (--method auto): nested held-out RMSE of each candidate, {folds}")
-        say.out("\n".join(table_lines(candidates, best)))
+        say.out("\n".join(table_lines(candidates, best, unit=unit)))
         say.out(f"chosen: {best.label} (nested held-out RMSE {best.held_out_rmse_dph:.3e} {unit})")
         result.held_out_dph = best.held_out_rmse_dph
     else:
@@ -231,8 +231,8 @@ def worse_than_nothing(trained: Trained, held_out_dph: float | None, unit: str =
 
 def summary(trained: Trained, unit: str = "deg/h") -> list[str]:
     """The chosen fit's hyper-parameters and its held-out drift beside the uncompensated one."""
-    hyper = dict(trained.fitted.hyperparameters)
-    if "epsilon_dph" in hyper:  # the tube in deg/h says what the scaled epsilon says; one of them is enough
+    hyper = unit_named(trained.fitted.hyperparameters, unit)
+    if epsilon_key(unit) in hyper:  # the tube in the channel's unit says what the scaled epsilon says; one is enough
         hyper.pop("epsilon", None)
     lines = [f"{trained.fitted.method}: " + ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in hyper.items())]
     resolutions = {spec.dequantise_c for spec in trained.model.inputs} - {None}

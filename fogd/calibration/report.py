@@ -21,7 +21,7 @@ from fogd.calibration.replay import (
     replay,
     replay_table,
 )
-from fogd.calibration.tables import error_table
+from fogd.calibration.tables import epsilon_key, error_table, unit_named
 from fogd.core.atomic import replaced
 from fogd.core.columns import TRUE_ERROR_COLUMN
 from fogd.core.errorstats import ErrorStats
@@ -49,12 +49,14 @@ def write_report(
     selection: list[str] | None = None,
     allan: bool = False,
     settle_s: float = SETTLE_S,
+    unit: str = "deg/h",
 ) -> str:
     """Write the figures and `report.md` into `directory` (created if missing); returns the summary's path.
 
     `selection`: the `--method auto` table (markdown lines); `allan`: add the Allan deviation of each held-out
     run before and after compensation by the chosen model (table and log-log figure); `settle_s`: the thermal
-    settling table 4 skips at the start of each held-out run (`fogd.calibration.replay.block_grid`)."""
+    settling table 4 skips at the start of each held-out run (`fogd.calibration.replay.block_grid`); `unit`: the
+    channel's (g for an accelerometer), in which every figure, table and number of the report is given."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -65,7 +67,7 @@ def write_report(
         raise InputError(f"cannot create report directory {describe_os_error(error)}") from None
     colours = {method: f"C{index}" for index, method in enumerate(trained)}
     first = next(iter(trained.values()))
-    lines = _training_summary(trained, chosen, block_s)
+    lines = _training_summary(trained, chosen, block_s, unit)
     if selection:
         lines += [
             "## Model selection (`--method auto`)",
@@ -78,11 +80,11 @@ def write_report(
         ]
     lines += [f"## Table 3: fit on the training runs ({len(first.error_dph)} blocks of {block_s:g} s)", ""]
     rows = [("Before compensation", first.before)] + [(method, t.after) for method, t in trained.items()]
-    lines += [error_table(rows, markdown=True), ""]
+    lines += [error_table(rows, markdown=True, unit=unit), ""]
     for method, t in trained.items():
-        name = _save(_fit_figure(method, t, colours[method], block_s), out, f"fit_{_slug(method)}.png")
+        name = _save(_fit_figure(method, t, colours[method], block_s, unit), out, f"fit_{_slug(method)}.png")
         lines += [f"![{method}: fit and residual]({name})", ""]
-    name = _save(_hysteresis_figure(trained), out, "error_vs_temperature.png")
+    name = _save(_hysteresis_figure(trained, unit), out, "error_vs_temperature.png")
     lines += [
         "## Error against temperature",
         "",
@@ -94,12 +96,12 @@ def write_report(
     ]
     histories = {method: t for method, t in trained.items() if len(t.fitted.fitness_history)}
     if histories:
-        name = _save(_convergence_figure(histories, colours), out, "pso_convergence.png")
+        name = _save(_convergence_figure(histories, colours, unit), out, "pso_convergence.png")
         lines += ["## PSO convergence", "", f"![PSO convergence]({name})", ""]
     for index, run in enumerate(holdouts, start=1):
-        lines += _holdout_section(index, run, trained, colours, block_s, settle_s, out)
+        lines += _holdout_section(index, run, trained, colours, block_s, settle_s, out, unit)
         if allan:
-            lines += _allan_section(index, run, chosen, trained[chosen], out)
+            lines += _allan_section(index, run, chosen, trained[chosen], out, unit)
     path = out / SUMMARY
     try:
         with replaced(str(path)) as stream:  # a report rewritten over an old one leaves it whole if this fails
@@ -109,14 +111,14 @@ def write_report(
     return str(path)
 
 
-def _training_summary(trained: dict[str, Trained], chosen: str, block_s: float) -> list[str]:
+def _training_summary(trained: dict[str, Trained], chosen: str, block_s: float, unit: str) -> list[str]:
     data = next(iter(trained.values())).data
     reference = next(iter(trained.values())).reference_dph
     lines = [
         "# fogd training report",
         "",
         f"Model written: **{chosen}** ({trained[chosen].model.name}). Targets are {block_s:g} s block means of the "
-        f"rate minus the reference {reference:.6g} deg/h; inputs: "
+        f"rate minus the reference {reference:.6g} {unit}; inputs: "
         + ", ".join(f"`{spec.label}`" for spec in trained[chosen].model.inputs)
         + ".",
         "",
@@ -126,15 +128,16 @@ def _training_summary(trained: dict[str, Trained], chosen: str, block_s: float) 
         "|---|---:|---:|---:|",
     ]
     lines += [f"| {run['name']} | {run['rows']} | {run['rate_hz']:.6g} | {run['blocks']} |" for run in data.runs]
-    lines += ["", "## Methods", "", "| Method | Hyper-parameters | Held-out (cv) RMSE (deg/h) |", "|---|---|---:|"]
+    lines += ["", "## Methods", "", f"| Method | Hyper-parameters | Held-out (cv) RMSE ({unit}) |", "|---|---|---:|"]
     for method, t in trained.items():
         cv = t.fitted.cv_rmse_dph
-        lines.append(f"| {method} | {_hyper(t.fitted.hyperparameters)} | {'-' if cv is None else f'{cv:.3e}'} |")
+        lines.append(f"| {method} | {_hyper(t.fitted.hyperparameters, unit)} | {'-' if cv is None else f'{cv:.3e}'} |")
     return lines + [""]
 
 
-def _hyper(values: dict[str, Any]) -> str:
-    if "epsilon_dph" in values:  # the tube in deg/h, as fogd-train's fit line: not the scaled epsilon too
+def _hyper(values: dict[str, Any], unit: str = "deg/h") -> str:
+    values = unit_named(values, unit)
+    if epsilon_key(unit) in values:  # the tube in the channel's unit, as fogd-train's fit line: not the scaled epsilon too
         values = {k: v for k, v in values.items() if k != "epsilon"}
     return ", ".join(f"{k}={v:.4g}" if isinstance(v, (float, np.floating)) else f"{k}={v}" for k, v in values.items()) or "-"
 
@@ -177,7 +180,7 @@ def _run_time_h(t: Trained, block_s: float) -> tuple[np.ndarray, list[tuple[floa
     return times, spans
 
 
-def _fit_figure(method: str, t: Trained, colour: str, block_s: float) -> Figure:
+def _fit_figure(method: str, t: Trained, colour: str, block_s: float, unit: str) -> Figure:
     """Paper figs 4-6: measured block-mean error with the model's fit, and the residual below."""
     figure, axes = _figure(2, height=3.0, sharex=True, gridspec_kw={"height_ratios": [3, 2]})
     top, bottom = axes[0, 0], axes[1, 0]
@@ -202,9 +205,9 @@ def _fit_figure(method: str, t: Trained, colour: str, block_s: float) -> Figure:
                      textcoords="offset points", va="top", fontsize=8, color="0.2",
                      bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": "none", "alpha": 0.8})  # fmt: skip
     before, after = t.before, t.after
-    top.set_title(f"{method}: training fit (RMSE {before.rmse_dph:.3g} -> {after.rmse_dph:.3g} deg/h)")
-    top.set_ylabel("error (deg/h)")
-    bottom.set_ylabel("residual (deg/h)")
+    top.set_title(f"{method}: training fit (RMSE {before.rmse_dph:.3g} -> {after.rmse_dph:.3g} {unit})")
+    top.set_ylabel(f"error ({unit})")
+    bottom.set_ylabel(f"residual ({unit})")
     bottom.axhline(0.0, color="k", lw=0.6)
     bottom.set_xlabel("time (h, runs end to end)" if len(spans) > 1 else "time (h)")
     for axis in (top, bottom):
@@ -213,7 +216,7 @@ def _fit_figure(method: str, t: Trained, colour: str, block_s: float) -> Figure:
     return figure
 
 
-def _hysteresis_figure(trained: dict[str, Trained]) -> Figure:
+def _hysteresis_figure(trained: dict[str, Trained], unit: str) -> Figure:
     """Block-mean error against temperature, coloured by temperature rate, with each model at a few rates."""
     import matplotlib.pyplot as plt
 
@@ -252,7 +255,7 @@ def _hysteresis_figure(trained: dict[str, Trained]) -> Figure:
                       path_effects=_outline())  # fmt: skip
         axis.set_title(f"{method}: error against temperature")
         axis.set_xlabel("temperature (C)")
-        axis.set_ylabel("error (deg/h)")
+        axis.set_ylabel(f"error ({unit})")
         axis.grid(True, alpha=0.4)
         axis.legend(fontsize=8, loc="best")
         axis.label_outer()
@@ -265,7 +268,7 @@ def _outline() -> list:
     return [patheffects.withStroke(linewidth=3.5, foreground="k"), patheffects.Normal()]
 
 
-def _convergence_figure(histories: dict[str, Trained], colours: dict[str, str]) -> Figure:
+def _convergence_figure(histories: dict[str, Trained], colours: dict[str, str], unit: str) -> Figure:
     from matplotlib.ticker import MaxNLocator
 
     figure, axes = _figure(1, width=7.0, height=4.0)
@@ -278,27 +281,27 @@ def _convergence_figure(histories: dict[str, Trained], colours: dict[str, str]) 
     axis.set_title("PSO convergence")
     axis.xaxis.set_major_locator(MaxNLocator(integer=True))
     axis.set_xlabel("iteration")
-    axis.set_ylabel("best fitness (deg/h)")
+    axis.set_ylabel(f"best fitness ({unit})")
     axis.grid(True, which="both", alpha=0.4)
     axis.legend()
     return figure
 
 
-def _allan_section(index: int, run: Run, chosen: str, t: Trained, out: Path) -> list[str]:
+def _allan_section(index: int, run: Run, chosen: str, t: Trained, out: Path, unit: str) -> list[str]:
     """Overlapping Allan deviation of a held-out run before and after compensation by the written model."""
     from fogd.calibration.allan import plot, summary_lines
 
     curves = allan_curves(run, replay(t.model, run))
     name = f"allan_{index}_{_slug(Path(run.name).stem)}.png"
     try:
-        plot(str(out / name), curves, f"{run.name}: overlapping Allan deviation ({chosen})")
+        plot(str(out / name), curves, f"{run.name}: overlapping Allan deviation ({chosen})", unit)
     except OSError as error:
         raise InputError(f"cannot write {describe_os_error(error)}") from None
     return [
         f"### Allan deviation of {run.name} ({chosen})",
         "",
         "```",
-        *summary_lines(curves),
+        *summary_lines(curves, unit),
         "```",
         "",
         f"![{run.name}: Allan deviation]({name})",
@@ -309,6 +312,7 @@ def _allan_section(index: int, run: Run, chosen: str, t: Trained, out: Path) -> 
 def _holdout_section(
     index: int, run: Run, trained: dict[str, Trained], colours: dict[str, str], block_s: float, settle_s: float,
     out: Path,
+    unit: str,
 ) -> list[str]:
     """Table 4 and paper figs 7-9 for one run not used for training: one replay per method, all on the run's
     one block grid."""
@@ -327,14 +331,14 @@ def _holdout_section(
         before = grid.means(run.rate_dph)
         after = grid.means(result.rate_comp_dph)
         axis.plot(hours, before - before.mean(), ".-", color=BEFORE, lw=0.8, ms=3,
-                  label=f"before (RMSE {table.before.rmse_dph:.3g} deg/h)")  # fmt: skip
+                  label=f"before (RMSE {table.before.rmse_dph:.3g} {unit})")  # fmt: skip
         axis.plot(hours, after - after.mean(), ".-", color=colours[method], lw=1.4, ms=3,
-                  label=f"{method} (RMSE {table.after.rmse_dph:.3g} deg/h)")  # fmt: skip
+                  label=f"{method} (RMSE {table.after.rmse_dph:.3g} {unit})")  # fmt: skip
         if truth is not None:
             ideal = grid.means(run.rate_dph - truth)
             axis.plot(hours, ideal - ideal.mean(), "--", color=TRUTH, lw=1.0,
-                      label=f"best possible (RMSE {table.best.rmse_dph:.3g} deg/h)")  # fmt: skip
-        axis.set_ylabel("rate - mean (deg/h)")
+                      label=f"best possible (RMSE {table.best.rmse_dph:.3g} {unit})")  # fmt: skip
+        axis.set_ylabel(f"{'reading' if unit == 'g' else 'rate'} - mean ({unit})")
         axis.grid(True, alpha=0.4)
         axis.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     axes[0, 0].set_title(f"{run.name}: real-time compensation of a run not used for training ({block_s:g} s block means)")
@@ -349,7 +353,7 @@ def _holdout_section(
         f"{first.blocks} block means of {block_s:g} s about the run mean ({run.rows} rows at {run.rate_hz:.6g} Hz), "
         f"{_settling(first, settle_s)}; the same blocks for every row.",
         "",
-        error_table(rows, markdown=True),
+        error_table(rows, markdown=True, unit=unit),
         "",
         "Share of the table's samples outside the calibrated domain: compensated by the domain guard's linear "
         "fallback (OUT_OF_DOMAIN), or with an input clamped to the calibrated range (CLAMPED).",

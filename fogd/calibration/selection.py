@@ -35,6 +35,7 @@ from fogd.calibration.features import TrainingSet
 from fogd.calibration.models import FitOptions, Fitted, fit, folds
 from fogd.calibration.models.folds import drift_rmse, run_levels
 from fogd.calibration.models.least_squares import POLY_TERMS
+from fogd.calibration.tables import epsilon_key, unit_named
 from fogd.calibration.training import (
     TrainConfig,
     Trained,
@@ -107,8 +108,9 @@ def input_sets(texts: list[str] | None, average_s: float, step_s: float) -> list
 
 
 def select(runs, config: TrainConfig, sets: list[tuple[InputSpec, ...]], families=FAMILIES,
-           log=None) -> tuple[Candidate, list[Candidate]]:  # fmt: skip
-    """Fit every candidate, return (the chosen one, all of them in order)."""
+           log=None, unit: str = "deg/h") -> tuple[Candidate, list[Candidate]]:  # fmt: skip
+    """Fit every candidate, return (the chosen one, all of them in order); `unit` is the channel's (g for an
+    accelerometer), for the progress lines."""
     common_s = max(
         (spec.estimator.window_s for specs in sets for spec in specs if spec.estimator is not None), default=0.0
     )
@@ -134,7 +136,7 @@ def select(runs, config: TrainConfig, sets: list[tuple[InputSpec, ...]], familie
                                   time.perf_counter() - started, trained)  # fmt: skip
             candidates.append(candidate)
             if log:
-                log(f"auto: {candidate.label}: held-out RMSE {candidate.held_out_rmse_dph:.4e} deg/h "
+                log(f"auto: {candidate.label}: held-out RMSE {candidate.held_out_rmse_dph:.4e} {unit} "
                     f"({candidate.seconds:.1f} s)")  # fmt: skip
     if not candidates:
         raise InputError("auto: no candidate could be fitted; record more or longer runs")
@@ -202,22 +204,23 @@ def _fit_family(runs, config: TrainConfig, prepared, method: str) -> Trained:
     return train(runs, config, prepared)
 
 
-def table_lines(candidates: list[Candidate], chosen: Candidate, markdown: bool = False) -> list[str]:
-    """The selection table: every candidate's held-out RMSE, relative to linear on the first input set."""
+def table_lines(candidates: list[Candidate], chosen: Candidate, markdown: bool = False, unit: str = "deg/h") -> list[str]:
+    """The selection table: every candidate's held-out RMSE (in the channel's `unit`: g for an accelerometer),
+    relative to linear on the first input set."""
     baseline = candidates[0].held_out_rmse_dph
     if markdown:
-        lines = ["| Method | Inputs | Held-out RMSE (deg/h) | vs linear | Hyper-parameters | |", "|---|---|---:|---:|---|---|"]
+        lines = [f"| Method | Inputs | Held-out RMSE ({unit}) | vs linear | Hyper-parameters | |", "|---|---|---:|---:|---|---|"]
     else:
-        lines = [f"{'Method':<9} {'Inputs':<28} {'held-out RMSE':>14} {'vs linear':>9}  hyper-parameters"]
+        lines = [f"{'Method':<9} {'Inputs':<28} {f'held-out RMSE ({unit})':>20} {'vs linear':>9}  hyper-parameters"]
     for c in candidates:
-        hyper = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in c.hyperparameters.items()
-                          if k in ("terms", "degree", "alpha", "centres", "C", "epsilon_dph", "sigma"))  # fmt: skip
+        hyper = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in unit_named(c.hyperparameters, unit).items()
+                          if k in ("terms", "degree", "alpha", "centres", "C", epsilon_key(unit), "sigma"))  # fmt: skip
         mark = "chosen" if c is chosen else ""
         ratio = c.held_out_rmse_dph / baseline
         if markdown:
             lines.append(f"| {c.method} | `{describe_inputs(c.inputs)}` | {c.held_out_rmse_dph:.3e} | {ratio:.3f} | {hyper or '-'} | {mark} |")
         else:
-            lines.append(f"{c.method:<9} {describe_inputs(c.inputs):<28} {c.held_out_rmse_dph:>14.3e} {ratio:>9.3f}  {hyper}"
+            lines.append(f"{c.method:<9} {describe_inputs(c.inputs):<28} {c.held_out_rmse_dph:>20.3e} {ratio:>9.3f}  {hyper}"
                          + (f"  <- {mark}" if mark else ""))  # fmt: skip
     return lines
 

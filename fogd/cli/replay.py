@@ -151,12 +151,13 @@ def _replay_channels(args: argparse.Namespace, models: ChannelModels, recorded: 
         print(_flag_counts(result.flags), file=report)
         if not args.no_allan or args.allan_plot:
             curves = allan_curves(view, result)
-            for line in summary_lines(curves):
+            for line in summary_lines(curves, channel_unit(channel)):
                 print(line, file=report)
             if args.allan_plot:
                 stem, suffix = os.path.splitext(args.allan_plot)
                 path = f"{stem}-{channel}{suffix or '.png'}"
-                plot(path, curves, f"{recorded.name}, {channel}: overlapping Allan deviation ({model.method})")
+                plot(path, curves, f"{recorded.name}, {channel}: overlapping Allan deviation ({model.method})",
+                     channel_unit(channel))  # fmt: skip
                 print(f"wrote {path}", file=sys.stderr)
     return 0
 

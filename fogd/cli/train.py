@@ -12,6 +12,7 @@ from fogd.calibration.channels import (
     ChannelJob,
     Settings,
     channel_jobs,
+    channel_unit,
     fit_channels,
     unit_document,
 )
@@ -246,7 +247,7 @@ def _finish(args: argparse.Namespace, unit: Unit, jobs: list[ChannelJob], fits: 
         for job, fit in zip(jobs, fits):
             directory = Path(args.report, *(part for part in (job.unit, job.channel) if part))
             path = write_report(str(directory), fit.trained, fit.label, job.holdouts, args.block_s,
-                                selection=fit.selection, allan=True)  # fmt: skip
+                                selection=fit.selection, allan=True, unit=channel_unit(fit.channel))  # fmt: skip
             print(f"wrote report {path}", file=sys.stderr)
 
 
