@@ -29,15 +29,10 @@ from fogd.calibration.selection import select, table_lines
 from fogd.calibration.tables import epsilon_key, error_table, unit_named
 from fogd.calibration.training import TrainConfig, Trained, for_sensor, prepare, train
 from fogd.core import modelfile
-from fogd.core.columns import ACCEL_CHANNELS, SINGLE_CHANNEL
+from fogd.core.columns import SINGLE_CHANNEL, channel_unit
 from fogd.core.inputs import InputSpec, describe_inputs
 from fogd.core.runio import Run
 from fogd.errors import FogdError, InputError
-
-
-def channel_unit(channel: str | None) -> str:
-    """The unit a channel's rates and errors are in: g for an accelerometer, deg/h for a gyro."""
-    return "g" if channel in ACCEL_CHANNELS else "deg/h"
 
 
 @dataclass

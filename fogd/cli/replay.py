@@ -10,7 +10,6 @@ from typing import Sequence
 import numpy as np
 
 from fogd.calibration.allan import plot, summary_lines
-from fogd.calibration.channels import channel_unit
 from fogd.calibration.replay import (
     SETTLE_S,
     ReplayTable,
@@ -24,7 +23,7 @@ from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, run
 from fogd.core import modelfile
 from fogd.core.atomic import refuse_inputs
 from fogd.core.channels import ChannelModels, output_columns
-from fogd.core.columns import BLOCK_S, OUTPUT_FORMATS, SINGLE_CHANNEL
+from fogd.core.columns import BLOCK_S, OUTPUT_FORMATS, SINGLE_CHANNEL, channel_unit
 from fogd.core.flags import Flag
 from fogd.core.numbers import non_negative_float, positive_float
 from fogd.core.runio import Run, read_run, write_csv

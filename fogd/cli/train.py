@@ -12,7 +12,6 @@ from fogd.calibration.channels import (
     ChannelJob,
     Settings,
     channel_jobs,
-    channel_unit,
     fit_channels,
     unit_document,
 )
@@ -31,7 +30,7 @@ from fogd.calibration.units import Unit, read_manifest
 from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, run
 from fogd.core import modelfile
 from fogd.core.atomic import refuse_inputs
-from fogd.core.columns import BLOCK_S, CHANNELS
+from fogd.core.columns import BLOCK_S, CHANNELS, channel_unit
 from fogd.core.estimator import EstimatorSettings
 from fogd.core.inputs import (
     DEFAULT_INPUTS_TEXT,

@@ -30,6 +30,12 @@ def block_samples(block_s: float, rate_hz: float) -> int:
     return max(1, int(round(block_s * rate_hz)))
 
 
+def channel_unit(channel: str | None) -> str:
+    """The unit a channel's readings, compensations and errors are in: g for an accelerometer, deg/h for a
+    gyro (and a single-axis run's rate_dph)."""
+    return "g" if channel in ACCEL_CHANNELS else "deg/h"
+
+
 def truth_column(channel: str) -> str:
     """The simulator's true thermal error of `channel`: true_error_dph for a single-axis run, else
     true_error_<channel> (true_error_rate_x_dph, true_error_accel_z_g)."""
