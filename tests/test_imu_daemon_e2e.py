@@ -3,9 +3,9 @@ and delta output), fogd compensates all six channels with a version-3 model fogd
 IMU runs, and every channel of its output equals fogd-replay of the same recording (the samples the wire
 carried, as the emulator's ledger decodes them, which is what fogd-record writes); x, y and the
 accelerometers are compensated, not passed through. A model with only some channels compensates those and
-passes the others through, saying so. `same` output re-encodes every compensated channel, in the unit's own
-rate or delta units; `fogd` output is the six-channel compensated-IMU frame; the unit's settings are
-queried at start when asked, and a contradiction stops fogd in one line."""
+passes the others through untouched, saying so at start and in its status. `same` output re-encodes every
+compensated channel, in the unit's own rate or delta units; `fogd` output is the six-channel compensated-IMU
+frame; the unit's settings are queried at start when asked, and a contradiction stops fogd in one line."""
 
 from __future__ import annotations
 
@@ -154,6 +154,27 @@ def test_a_model_with_some_channels_compensates_those_and_passes_the_others_thro
     assert_equal_tables(header, np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2), expected_header, expected)
     assert [name for name in header if name.startswith("flags_")] == ["flags_rate_x_dph", "flags_accel_z_g"]
     assert "comp_rate_y_dph" not in header and "rate_y_dph" in header  # passed through: the reading alone
+
+
+def test_a_partial_model_is_flagged_in_the_status_and_passes_the_wire_readings_through(tmp_path, models):
+    """The channels passed through are named in the stats file and its status line, and carry the wire's readings
+    untouched."""
+    stats = tmp_path / "stats.json"
+    ledger, out, _ = through_fogd(tmp_path, models["part"], [], ["--out-format", "csv", "--stats-file", str(stats)],
+                                  rows(COUNT + 1))  # fmt: skip
+    snapshot = json.loads(stats.read_text())
+    passed = ["rate_y_dph", "rate_z_dph", "accel_x_g", "accel_y_g"]
+    assert snapshot["channels"] == {"compensated": ["rate_x_dph", "accel_z_g"], "passed": passed}
+    assert f"passed through: {', '.join(passed)}" in snapshot["status"]
+    header = out.read_text().split("\n", 1)[0].split(",")
+    output = np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2)
+    sent = [entry for entry in ledger if entry["sent"]]
+    for channel in passed:
+        accel = channel in ACCEL_CHANNELS
+        axis = (ACCEL_CHANNELS if accel else GYRO_CHANNELS).index(channel)
+        wire = [entry["accel_g" if accel else "rates_dph"][axis] for entry in sent]
+        # the wire's float32 reading, printed to nine significant digits
+        np.testing.assert_allclose(output[:, header.index(channel)], wire, rtol=1e-8, atol=0, err_msg=channel)
 
 
 @pytest.mark.parametrize("units", list(UNITS))
