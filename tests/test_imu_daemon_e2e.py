@@ -3,9 +3,10 @@ and delta output), fogd compensates all six channels with a version-3 model fogd
 IMU runs, and every channel of its output equals fogd-replay of the same recording (the samples the wire
 carried, as the emulator's ledger decodes them, which is what fogd-record writes); x, y and the
 accelerometers are compensated, not passed through. A model with only some channels compensates those and
-passes the others through untouched, saying so at start and in its status. `same` output re-encodes every
-compensated channel, in the unit's own rate or delta units; `fogd` output is the six-channel compensated-IMU
-frame; the unit's settings are queried at start when asked, and a contradiction stops fogd in one line."""
+passes the others through untouched, saying so at start and in its status; fogd-top and fogd --status show
+each compensated channel in its own unit. `same` output re-encodes every compensated channel, in the unit's
+own rate or delta units; `fogd` output is the six-channel compensated-IMU frame; the unit's settings are
+queried at start when asked, and a contradiction stops fogd in one line."""
 
 from __future__ import annotations
 
@@ -20,13 +21,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fogd.cli import replay
+from fogd.cli import replay, top
 from fogd.core import modelfile
 from fogd.core.channels import output_columns
 from fogd.core.columns import ACCEL_CHANNELS, CHANNELS, GYRO_CHANNELS
+from fogd.core.flags import describe
 from fogd.protocols import get
 from fogd.protocols.fogdbin import decode_comp_imu
 from fogd.protocols.lexer import Lexer
+from fogd.serving import statsfile
 
 EMU = [sys.executable, "-m", "fogd.cli.emu"]
 FOGD = [sys.executable, "-m", "fogd.cli.daemon"]
@@ -156,9 +159,10 @@ def test_a_model_with_some_channels_compensates_those_and_passes_the_others_thro
     assert "comp_rate_y_dph" not in header and "rate_y_dph" in header  # passed through: the reading alone
 
 
-def test_a_partial_model_is_flagged_in_the_status_and_passes_the_wire_readings_through(tmp_path, models):
+def test_a_partial_model_is_flagged_in_the_status_and_fogd_top_shows_every_channel(tmp_path, models, capsys):
     """The channels passed through are named in the stats file and its status line, and carry the wire's readings
-    untouched."""
+    untouched; fogd-top shows a row per compensated channel with the daemon's last compensation (the output's
+    last row) in the channel's own unit and its flags, and names the channels passed through."""
     stats = tmp_path / "stats.json"
     ledger, out, _ = through_fogd(tmp_path, models["part"], [], ["--out-format", "csv", "--stats-file", str(stats)],
                                   rows(COUNT + 1))  # fmt: skip
@@ -175,6 +179,19 @@ def test_a_partial_model_is_flagged_in_the_status_and_passes_the_wire_readings_t
         wire = [entry["accel_g" if accel else "rates_dph"][axis] for entry in sent]
         # the wire's float32 reading, printed to nine significant digits
         np.testing.assert_allclose(output[:, header.index(channel)], wire, rtol=1e-8, atol=0, err_msg=channel)
+    capsys.readouterr()
+    assert top.main(["--stats-file", str(stats), "--count", "1"]) == top.EXIT_NOT_RUNNING  # stopped: its last screen
+    screen = capsys.readouterr().out.splitlines()
+    for channel, spec, unit in (("rate_x_dph", "+.4f", "deg/h"), ("accel_z_g", "+.4g", "g")):
+        comp_name, _, flags_name = output_columns(channel)
+        last_comp, last_flags = output[-1, header.index(comp_name)], int(output[-1, header.index(flags_name)])
+        row = next(line for line in screen if line.startswith(channel))
+        assert row.split() == [channel, format(last_comp, spec), unit, *describe(last_flags).split()], row
+    assert f"passed through untouched (no model for them): {', '.join(passed)}" in screen
+    assert not any(line.startswith(channel) for line in screen for channel in passed)
+    described = statsfile.describe(snapshot)  # fogd --status: each channel's compensation in its own unit
+    for channel, unit in (("rate_x_dph", "deg/h"), ("accel_z_g", "g")):
+        assert f"{channel} {output[-1, header.index(output_columns(channel)[0])]:+.6g} {unit}" in described, described
 
 
 @pytest.mark.parametrize("units", list(UNITS))

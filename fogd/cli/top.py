@@ -1,7 +1,9 @@
 """`fogd-top`: a terminal view of a running fogd, like gpsd's gpsmon. It reads the daemon's stats file (rewritten
 every second; the same file `fogd --status` reads) and shows its counters, latency, flags and the last minute
-of temperature, temperature rate and compensation as sparklines. Plain text and two ANSI sequences (home,
-clear) on a terminal, none when stdout is a file or pipe: no curses, so it works over ssh and under tmux.
+of temperature, temperature rate and compensation as sparklines; a daemon compensating several channels of an
+IMU gets a row per channel (its compensation in its own unit and its flags) and the channels it passes
+through. Plain text and two ANSI sequences (home, clear) on a terminal, none when stdout is a file or pipe: no
+curses, so it works over ssh and under tmux.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ import time
 from typing import Any, Sequence
 
 from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, run
+from fogd.core.columns import SINGLE_CHANNEL, channel_unit
 from fogd.core.flags import Flag, describe
 from fogd.core.numbers import number_in, whole_number
 from fogd.serving import config, statsfile
@@ -32,7 +35,8 @@ def parser() -> ArgumentParser:
     p = ArgumentParser(
         prog=PROG,
         description="Watch a running fogd: counters, latency, flags and the last minute of temperature, "
-        "temperature rate and compensation as sparklines, redrawn every second from the daemon's stats file. "
+        "temperature rate and compensation as sparklines, redrawn every second from the daemon's stats file; with an "
+        "IMU's model, a row per compensated channel (compensation in its own unit, flags) and the channels passed through. "
         "Plain text (no curses): works over ssh. Ctrl-C quits.",
         epilog=f"Flags row letters: {', '.join(f'{letter} {flag.name}' for flag, letter in FLAG_LETTERS.items())}, "
         ". none. Exit status: 0 (Ctrl-C, or --count frames shown of a running daemon), 2 usage, 3 with --count: "
@@ -92,6 +96,37 @@ def _range(values: Sequence[Any], spec: str, unit: str) -> str:
     return f"({format(min(finite), spec)} .. {format(max(finite), spec)} {unit})"
 
 
+def _comp(value: Any, channel: str) -> str:
+    """A compensation in the channel's unit: deg/h to 4 decimals as a gyro's always was, g to 4 significant digits."""
+    unit = channel_unit(channel)
+    return _number(value, "+.4f" if unit == "deg/h" else "+.4g", unit)
+
+
+def compensated_channels(snapshot: dict[str, Any]) -> list[str]:
+    """The channels a multi-channel daemon compensates, in frame order; [] for a single-axis model."""
+    plan = snapshot.get("channels") if isinstance(snapshot.get("channels"), dict) else {}
+    names = [name for name in plan.get("compensated") or [] if isinstance(name, str)]
+    return [] if names in ([], [SINGLE_CHANNEL]) else names
+
+
+def channel_lines(snapshot: dict[str, Any]) -> list[str]:
+    """A row per compensated channel (its latest compensation and flags), then the channels passed through."""
+    names = compensated_channels(snapshot)
+    latest = (snapshot.get("latest") or {}).get("channels")
+    latest = latest if isinstance(latest, dict) else {}
+    width = max(len("channel"), *(len(name) for name in names))
+    lines = [f"{'channel':<{width}}  {'comp':>18}  flags"]
+    for name in names:
+        one = latest.get(name) if isinstance(latest.get(name), dict) else {}
+        flags = one.get("flags")
+        flags_text = describe(int(flags)) if isinstance(flags, (int, float)) and math.isfinite(flags) else "-"
+        lines.append(f"{name:<{width}}  {_comp(one.get('comp'), name):>18}  {flags_text}")
+    passed = (snapshot.get("channels") or {}).get("passed") or []
+    if passed:
+        lines.append(f"passed through untouched (no model for them): {', '.join(map(str, passed))}")
+    return lines
+
+
 def render(snapshot: dict[str, Any], path: str, *, width: int = 60, bars: str = UNICODE_BARS) -> list[str]:
     """The screen for one snapshot, as lines of plain text."""
     live = statsfile.is_live(snapshot)
@@ -115,6 +150,12 @@ def render(snapshot: dict[str, Any], path: str, *, width: int = 60, bars: str = 
         return _number(100.0 * shares[key] if isinstance(shares.get(key), (int, float)) else None, ".1f", "%")
 
     connected = "connected" if snapshot.get("connected") else "LOST (waiting for it)"
+    several = compensated_channels(snapshot)
+    if several:  # each channel's compensation and flags in the rows below; the shares count a sample once
+        comp_now = f"fallback {share('out_of_domain')}  clamped {share('clamped')} (of the samples, any channel)"
+    else:
+        comp_now = (f"comp {_number(latest.get('comp_dph'), '+.4f', 'deg/h')}  flags {describe(int(latest.get('flags') or 0))}  "
+                    f"fallback {share('out_of_domain')}  clamped {share('clamped')}")  # fmt: skip
     lines = [
         f"{PROG}  fogd {snapshot.get('version', '?')}  pid {snapshot.get('pid', '?')}  {state}  "
         f"up {_number(snapshot.get('uptime_s'), '.0f', 's')}  {time.strftime('%H:%M:%S')}",
@@ -127,16 +168,21 @@ def render(snapshot: dict[str, Any], path: str, *, width: int = 60, bars: str = 
         f"latency  last {ms(latency.get('last'))}  max {ms(latency.get('max_since_status'))}   "
         f"samples {loop.get('samples_compensated', 0)}  reloads {loop.get('reloads', 0)}",
         f"now      T {_number(latest.get('temp_c'), '.2f', 'C')}  dT/dt {_number(latest.get('temp_rate_cps'), '+.5f', 'C/s')}  "
-        f"comp {_number(latest.get('comp_dph'), '+.4f', 'deg/h')}  flags {describe(int(latest.get('flags') or 0))}  "
-        f"fallback {share('out_of_domain')}  clamped {share('clamped')}",
-        "",
-        f"last minute, one point a second ({len(history.get('temp_c') or [])} points), oldest on the left:",
+        f"{comp_now}",
     ]
-    rows = (("T", "temp_c", ".2f", "C"), ("dT/dt", "temp_rate_cps", "+.5f", "C/s"), ("comp", "comp_dph", "+.4f", "deg/h"))
+    if several:
+        lines += ["", *channel_lines(snapshot)]
+    lines += ["", f"last minute, one point a second ({len(history.get('temp_c') or [])} points), oldest on the left:"]
+    # the history's compensation and flags are the first compensated channel's (the daemon keeps one series)
+    first = several[0] if several else SINGLE_CHANNEL
+    of_first = f", {first}" if several else ""
+    comp_spec = "+.4f" if channel_unit(first) == "deg/h" else "+.4g"
+    rows = (("T", "temp_c", ".2f", "C"), ("dT/dt", "temp_rate_cps", "+.5f", "C/s"),
+            ("comp", "comp_dph", comp_spec, f"{channel_unit(first)}{of_first}"))  # fmt: skip
     for label, key, spec, unit in rows:
         values = history.get(key) or []
         lines.append(f"{label:8s} {sparkline(values, width, bars):{width}s}  {_range(values, spec, unit)}")
-    lines.append(f"{'flags':8s} {flag_row(history.get('flags') or [], width):{width}s}  (. none; see --help)")
+    lines.append(f"{'flags':8s} {flag_row(history.get('flags') or [], width):{width}s}  (. none{of_first}; see --help)")
     lines.append("")
     lines.append(f"{path}; Ctrl-C quits")
     return lines

@@ -13,6 +13,7 @@ import os
 import time
 from typing import Any
 
+from fogd.core.columns import channel_unit
 from fogd.errors import DeviceError, describe_os_error
 
 log = logging.getLogger("fogd.stats")
@@ -102,12 +103,20 @@ def describe(snapshot: dict[str, Any]) -> str:
     def number(value: Any, spec: str) -> str:
         return format(value, spec) if isinstance(value, (int, float)) else "-"
 
+    channels = latest.get("channels")
+    if isinstance(channels, dict) and channels:  # a multi-channel model: each channel's, in its own unit
+        comp = "comp " + ", ".join(
+            f"{name} {number(one.get('comp') if isinstance(one, dict) else None, '+.6g')} {channel_unit(name)}"
+            for name, one in channels.items()
+        )
+    else:
+        comp = f"comp {number(latest.get('comp_dph'), '+.4f')} deg/h"
     return "\n".join(
         [
             f"fogd {snapshot.get('version', '?')} pid {snapshot.get('pid')} {state}, up {number(snapshot.get('uptime_s'), '.0f')} s, "
             f"port {snapshot.get('port', '?')} {'connected' if snapshot.get('connected') else 'LOST (waiting for it)'}",
             f"model {model.get('name')} ({model.get('method')}); T {number(latest.get('temp_c'), '.2f')} C, "
-            f"dT/dt {number(latest.get('temp_rate_cps'), '+.5f')} C/s, comp {number(latest.get('comp_dph'), '+.4f')} deg/h, "
+            f"dT/dt {number(latest.get('temp_rate_cps'), '+.5f')} C/s, {comp}, "
             f"latency {number(1e3 * latency['last'] if isinstance(latency.get('last'), (int, float)) else None, '.1f')} ms",
             str(snapshot.get("status", "")),
         ]
