@@ -13,11 +13,13 @@ from fogd.core.runio import read_run
 from fogd.simulation import profiles
 from fogd.simulation.profiles import Profile
 from fogd.simulation.simulator import (
+    ACCEL_ERRORS,
     EARTH_RATE_DPH,
     IMU_CHANNELS,
     SimParams,
     Simulation,
     channel_errors,
+    params_for,
 )
 
 CYCLE = profiles.builtin("cycle")
@@ -108,6 +110,37 @@ def test_x_and_y_gyros_scale_with_the_single_axis_terms():
     for channel in ("rate_x_dph", "rate_y_dph"):
         assert loud[channel].rate_per_cps == pytest.approx(2 * base[channel].rate_per_cps)
     assert base["rate_x_dph"].rate_per_cps < 0 < base["rate_y_dph"].rate_per_cps
+
+
+def test_every_channels_play_follows_the_gyros_hysteresis():
+    default = channel_errors(SimParams())
+    assert {channel: default[channel].hysteresis for channel in ACCEL_CHANNELS} == {
+        channel: error.hysteresis for channel, error in ACCEL_ERRORS.items()}  # fmt: skip
+    assert all(error.hysteresis == 0.0 for error in channel_errors(SimParams(hysteresis_dph=0.0)).values())
+    doubled = channel_errors(SimParams(hysteresis_dph=2 * SimParams().hysteresis_dph))
+    for channel in IMU_CHANNELS:
+        assert doubled[channel].hysteresis == pytest.approx(2 * default[channel].hysteresis), channel
+
+
+def _block_floor(values: np.ndarray, rate_hz: float) -> float:
+    """The std of 100 s block means after 600 s, as tools/accuracy_table.py divides by."""
+    rows, skip = int(100 * rate_hz), int(600 * rate_hz)
+    usable = (values.size - skip) // rows * rows
+    return float(values[skip : skip + usable].reshape(-1, rows).mean(axis=1).std())
+
+
+def test_the_navigation_grade_keeps_every_channels_play_near_its_noise_floor_as_the_gyros():
+    """The navigation grade keeps the play hysteresis (which no finite thermal memory describes) near the gyro's
+    noise floor; an accelerometer's play must stand no further above its own floor than the gyro's does."""
+    rate_hz = 10.0
+    params = params_for("navigation")
+    columns = Simulation(profiles.builtin("fast-ramp"), rate_hz, 1, params).imu_columns()
+    errors = channel_errors(params)
+    ratios = {channel: errors[channel].hysteresis / _block_floor(columns[channel] - columns[truth_column(channel)], rate_hz)
+              for channel in IMU_CHANNELS}  # fmt: skip
+    assert 0.5 < ratios["rate_z_dph"] < 2.0, ratios
+    for channel in ACCEL_CHANNELS:
+        assert ratios[channel] <= 2.0 * ratios["rate_z_dph"], ratios
 
 
 def test_fogd_sim_imu_writes_a_multi_channel_run(tmp_path):

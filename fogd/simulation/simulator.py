@@ -20,8 +20,8 @@ reproducible.
 `Simulation.imu_columns` makes the same run as a three-axis IMU (`IMU_CHANNELS`): z is the single-axis gyro
 above, number for number; x and y are gyros whose thermal errors are other functions of the same coil states
 (other coefficients and signs, the static term taken nearer the outer or the inner layer); three
-accelerometers (g, gravity on z) have their own thermal errors of the same coil states. Every channel draws
-its own noise, and each has its own true-error column.
+accelerometers (g, gravity on z) have their own thermal errors of the same coil states, their play hysteresis
+in proportion to the gyro's. Every channel draws its own noise, and each has its own true-error column.
 """
 
 from __future__ import annotations
@@ -158,7 +158,10 @@ _GYRO_SCALES = {
     "rate_x_dph": ((-0.7, 1.3, -0.5), -0.6, 1.4, 0.8, 0.7),
     "rate_y_dph": ((-0.3, 2.0, 0.6), 1.3, -0.7, 1.2, -0.7),
 }
-# The accelerometers' own terms (g): a few mg over the chamber's span, like a tactical MEMS accelerometer.
+# The accelerometers' own terms (g): a few mg over the chamber's span, like a tactical MEMS accelerometer. Their
+# play hysteresis is given for SimParams' default gyro and follows the gyro's (hysteresis_dph) in proportion, as the
+# x and y gyros' does: a grade that keeps the gyro's play near its noise floor (navigation: the play no finite
+# thermal memory can describe) keeps theirs there too, and hysteresis_dph=0 removes every channel's.
 ACCEL_ERRORS = {
     "accel_x_g": ChannelError((1.2e-3, -4e-4, 3e-4), 6e-2, 0.0, 5e-5, 1.0),
     "accel_y_g": ChannelError((-3e-4, 1.2e-3, -2e-4), -3e-2, 5e-3, 0.0, 0.3),
@@ -177,7 +180,8 @@ def channel_errors(params: SimParams) -> dict[str, ChannelError]:
             gradient * z.gradient_rate_per_cps, hysteresis * z.hysteresis, mix,
         )  # fmt: skip
     errors["rate_z_dph"] = z
-    errors.update(ACCEL_ERRORS)
+    play = params.hysteresis_dph / SimParams.hysteresis_dph  # the default gyro's play, for which ACCEL_ERRORS are given
+    errors.update({channel: replace(error, hysteresis=error.hysteresis * play) for channel, error in ACCEL_ERRORS.items()})
     return {channel: errors[channel] for channel in IMU_CHANNELS}
 
 
