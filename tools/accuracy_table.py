@@ -13,6 +13,8 @@ fallback column is the share of the held-out samples that the domain guard sent 
     python tools/accuracy_table.py --quick    # PSO 20 x 20 (and 10 x 10 inside auto), about 15 minutes
     python tools/accuracy_table.py --quick --hysteresis-dph 0   # the gyro without its play hysteresis
     python tools/accuracy_table.py --quick --imu --sensor fine   # a three-axis IMU: one table per channel
+    python tools/accuracy_table.py --quick --sensor fine --schemes default --seed 3   # the default alone
+    python tools/accuracy_table.py --quick --schemes default --default-inputs temp,lags@10..2560/9   # another bank
 
 With --imu the runs are three-axis IMUs (`fogd-sim --imu`: three gyros and three accelerometers, each with its
 own thermal error of the same coil), every channel is trained with fogd-train's default exactly as fogd-train
@@ -63,6 +65,10 @@ SCHEMES = (  # (label, method, inputs, fitness, trend, domain guard)
 )
 
 
+SCHEME_KEYS = {SCHEMES[0][0]: "linear", SCHEMES[1][0]: "paper", SCHEMES[2][0]: "previous", DEFAULT: "default",
+               SCHEMES[4][0]: "guard", AUTO: "auto"}
+
+
 def simulated_run(profile: str, seed: int, rate_hz: float, params) -> Run:
     sim = simulate(builtin(profile), rate_hz, seed, params)
     digest = hashlib.sha256(sim.rate_dph.tobytes()).hexdigest()
@@ -77,7 +83,7 @@ def evaluate(args, thermal: str, resolution_c: float, sensor_hz: float) -> dict[
     size = (20, 20) if args.quick else (60, 100)
     auto_size = (10, 10) if args.quick else (AUTO_PARTICLES, AUTO_ITERATIONS)
     rows: dict[str, list] = {}
-    for label, method, inputs, fitness, trend, guard in SCHEMES:
+    for label, method, inputs, fitness, trend, guard in selected_schemes(args):
         swarm = auto_size if method == "auto" else size
         options = FitOptions(particles=swarm[0], iterations=swarm[1], fitness=fitness, trend=trend, n_jobs=args.jobs,
                              seed=args.seed, progress=False)  # fmt: skip
@@ -163,15 +169,29 @@ def print_channel_tables(title: str, rows: dict[str, dict[str, list]], bar: floa
               f"{min(floors):.1e}-{max(floors):.1e} {channel_unit(channel)} |")
 
 
+def selected_schemes(args) -> list[tuple]:
+    """SCHEMES, the default's inputs replaced by `--default-inputs`, only those named by `--schemes`."""
+    chosen = []
+    for label, method, inputs, fitness, trend, guard in SCHEMES:
+        if args.schemes and SCHEME_KEYS[label] not in args.schemes:
+            continue
+        if args.default_inputs and inputs == DEFAULT_INPUTS_TEXT:
+            inputs = args.default_inputs
+        chosen.append((label, method, inputs, fitness, trend, guard))
+    return chosen
+
+
 def print_table(title: str, rows: dict[str, list]) -> None:
     print(f"\n{title}\n")
     print("| Scheme | " + " | ".join(HELD_OUT) + " | worst | fallback |")
     print("|---|" + "---:|" * (len(HELD_OUT) + 2))
-    for label in ["Before compensation"] + [scheme[0] for scheme in SCHEMES]:
+    for label in ["Before compensation"] + [scheme[0] for scheme in SCHEMES if scheme[0] in rows]:
         ratios = [ratio for ratio, _ in rows[label]]
         fallback = max(share for _, share in rows[label])
         print(f"| {label} | " + " | ".join(f"{r:.2f}" for r in ratios) + f" | {max(ratios):.2f} | {fallback * 100:.1f} % |")
     print("| Noise floor, deg/h | " + " | ".join(f"{f:.1e}" for f in rows["_floor"]) + " | | |")
+    if AUTO not in rows or LINEAR not in rows:
+        return
     auto = np.array([r for r, _ in rows[AUTO]]) / np.array([r for r, _ in rows[LINEAR]])
     print(f"\n{AUTO} {rows['_auto_choice'][0]}; auto / linear per run: " + ", ".join(f"{g:.3f}" for g in auto)
           + f" (worst {auto.max():.3f})")
@@ -187,16 +207,31 @@ def main() -> None:
     parser.add_argument("--hysteresis-dph", type=float, default=None,
                         help="the simulated gyro's play hysteresis, deg/h (default: the navigation preset's, 0.001); "
                              "0 shows what the thermal model alone leaves (with --imu every channel's play follows it)")
+    parser.add_argument("--schemes", type=lambda text: text.split(","), default=None,
+                        help="only these schemes, comma-separated, of: " + ", ".join(SCHEME_KEYS.values())
+                             + " (default: all)")
+    parser.add_argument("--default-inputs", default=None,
+                        help=f"the default schemes' --inputs instead of {DEFAULT_INPUTS_TEXT} (to measure another bank)")
     parser.add_argument("--quick", action="store_true", help="PSO 20 x 20 instead of the paper's 60 x 100, 10 x 10 inside auto")
     parser.add_argument("--imu", action="store_true",
                         help="three-axis IMU runs: fogd-train's default on every gyro and accelerometer, one table per channel")
     args = parser.parse_args()
+    unknown = sorted(set(args.schemes or ()) - set(SCHEME_KEYS.values()))
+    if unknown:
+        parser.error(f"unknown scheme {', '.join(unknown)}: choose from {', '.join(SCHEME_KEYS.values())}")
+    if args.default_inputs:
+        try:
+            parse_inputs(args.default_inputs)
+        except ValueError as error:
+            parser.error(str(error))
     for thermal in args.thermal or THERMALS:
         for sensor, (resolution_c, sensor_hz) in SENSORS.items():
             if args.sensor and sensor.split()[0] not in args.sensor:
                 continue
             print(f"# {thermal} coil, {sensor} sensor", flush=True)
             hysteresis = "" if args.hysteresis_dph is None else f", hysteresis {args.hysteresis_dph:g} deg/h"
+            if args.default_inputs:
+                hysteresis += f", the default's inputs {args.default_inputs}"
             if args.imu:
                 print_channel_tables(f"Navigation-grade IMU, {thermal} coil, {sensor} sensor; {args.rate_hz:g} Hz, seed "
                                      f"{args.seed}{', PSO 20 x 20' if args.quick else ''}{hysteresis}: std of 100 s block "
