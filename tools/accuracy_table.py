@@ -181,14 +181,15 @@ def selected_schemes(args) -> list[tuple]:
     return chosen
 
 
-def print_table(title: str, rows: dict[str, list]) -> None:
+def print_table(title: str, rows: dict[str, list], default_inputs: str | None = None) -> None:
     print(f"\n{title}\n")
     print("| Scheme | " + " | ".join(HELD_OUT) + " | worst | fallback |")
     print("|---|" + "---:|" * (len(HELD_OUT) + 2))
     for label in ["Before compensation"] + [scheme[0] for scheme in SCHEMES if scheme[0] in rows]:
         ratios = [ratio for ratio, _ in rows[label]]
         fallback = max(share for _, share in rows[label])
-        print(f"| {label} | " + " | ".join(f"{r:.2f}" for r in ratios) + f" | {max(ratios):.2f} | {fallback * 100:.1f} % |")
+        shown = label.replace(DEFAULT_INPUTS_TEXT, default_inputs) if default_inputs else label
+        print(f"| {shown} | " + " | ".join(f"{r:.2f}" for r in ratios) + f" | {max(ratios):.2f} | {fallback * 100:.1f} % |")
     print("| Noise floor, deg/h | " + " | ".join(f"{f:.1e}" for f in rows["_floor"]) + " | | |")
     if AUTO not in rows or LINEAR not in rows:
         return
@@ -241,7 +242,7 @@ def main() -> None:
             rows = evaluate(args, thermal, resolution_c, sensor_hz)
             print_table(f"Navigation-grade gyro, {thermal} coil, {sensor} sensor; {args.rate_hz:g} Hz, seed {args.seed}"
                         f"{', PSO 20 x 20' if args.quick else ''}{hysteresis}: std of 100 s block means after 600 s / noise floor",
-                        rows)  # fmt: skip
+                        rows, args.default_inputs)  # fmt: skip
 
 
 if __name__ == "__main__":
