@@ -69,3 +69,25 @@ def test_quantisation_bound_is_blind_only_with_a_coarse_sensor():
     assert set(fine) == set(whole) == {"lumped", "diffusive"}
     assert all(value < 1.02 for value in fine.values())
     assert all(value > 1.2 for value in whole.values())
+
+
+def test_accuracy_table_runs_only_the_schemes_it_is_given():
+    """--schemes linear: one coil, one sensor, only the linear row (and the uncompensated one) in the table."""
+    done = subprocess.run(
+        [sys.executable, "-W", "ignore", str(TOOLS / "accuracy_table.py"), "--rate-hz", "1", "--thermal", "lumped",
+         "--sensor", "fine", "--schemes", "linear", "--jobs", "1"],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    rows = [line.split("|")[1].strip() for line in done.stdout.splitlines() if line.startswith("| ")]
+    assert rows == ["Scheme", "Before compensation", "linear (IEEE 952: temp, rate@50)", "Noise floor, deg/h"]
+
+
+@pytest.mark.parametrize("option, value", [("--schemes", "default,bogus"), ("--default-inputs", "lags@5..1")])
+def test_accuracy_table_refuses_bad_options_in_one_line(option, value):
+    done = subprocess.run([sys.executable, str(TOOLS / "accuracy_table.py"), option, value],
+                          capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert done.returncode == 2
+    assert "Traceback" not in done.stderr
+    error = done.stderr.strip().splitlines()[-1]
+    assert "error:" in error and value.split(",")[-1] in error
