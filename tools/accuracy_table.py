@@ -122,7 +122,7 @@ def evaluate_imu(args, thermal: str, resolution_c: float, sensor_hz: float) -> d
     held_out = [simulated_imu_run(name, args.seed + 100 + i, args.rate_hz, params) for i, name in enumerate(HELD_OUT)]
     size = (20, 20) if args.quick else (60, 100)
     options = FitOptions(particles=size[0], iterations=size[1], n_jobs=args.jobs, seed=args.seed, progress=False)
-    config = TrainConfig(inputs=parse_inputs(DEFAULT_INPUTS_TEXT), fit=options)  # fogd-train's defaults: pso-svr, coil trend, cv
+    config = TrainConfig(inputs=parse_inputs(args.default_inputs or DEFAULT_INPUTS_TEXT), fit=options)  # fogd-train's defaults: pso-svr, coil trend, cv
     settings = Settings(config, [config.inputs], log=False)
     started = time.perf_counter()
     fits = fit_channels(channel_jobs("", calibration, [], None, settings), settings, args.jobs)
