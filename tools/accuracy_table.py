@@ -15,6 +15,7 @@ fallback column is the share of the held-out samples that the domain guard sent 
     python tools/accuracy_table.py --quick --imu --sensor fine   # a three-axis IMU: one table per channel
     python tools/accuracy_table.py --quick --sensor fine --schemes default --seed 3   # the default alone
     python tools/accuracy_table.py --quick --schemes default --default-inputs temp,lags@10..2560/9   # another bank
+    python tools/accuracy_table.py --quick --sensor whole --bound  # and tools/quantisation_bound.py's bound per run
 
 With --imu the runs are three-axis IMUs (`fogd-sim --imu`: three gyros and three accelerometers, each with its
 own thermal error of the same coil), every channel is trained with fogd-train's default exactly as fogd-train
@@ -181,7 +182,8 @@ def selected_schemes(args) -> list[tuple]:
     return chosen
 
 
-def print_table(title: str, rows: dict[str, list], default_inputs: str | None = None) -> None:
+def print_table(title: str, rows: dict[str, list], default_inputs: str | None = None,
+                bound: list[float] | None = None) -> None:
     print(f"\n{title}\n")
     print("| Scheme | " + " | ".join(HELD_OUT) + " | worst | fallback |")
     print("|---|" + "---:|" * (len(HELD_OUT) + 2))
@@ -190,6 +192,12 @@ def print_table(title: str, rows: dict[str, list], default_inputs: str | None = 
         fallback = max(share for _, share in rows[label])
         shown = label.replace(DEFAULT_INPUTS_TEXT, default_inputs) if default_inputs else label
         print(f"| {shown} | " + " | ".join(f"{r:.2f}" for r in ratios) + f" | {max(ratios):.2f} | {fallback * 100:.1f} % |")
+    if bound is not None and DEFAULT in rows:
+        print("| lower bound for any compensator (tools/quantisation_bound.py) | " + " | ".join(f"{b:.2f}" for b in bound)
+              + f" | {max(bound):.2f} | |")
+        default = [ratio for ratio, _ in rows[DEFAULT]]
+        print("| fogd default / lower bound | " + " | ".join(f"{d / b:.2f}" for d, b in zip(default, bound))
+              + f" | {max(d / b for d, b in zip(default, bound)):.2f} | |")
     print("| Noise floor, deg/h | " + " | ".join(f"{f:.1e}" for f in rows["_floor"]) + " | | |")
     if AUTO not in rows or LINEAR not in rows:
         return
@@ -213,6 +221,8 @@ def main() -> None:
                              + " (default: all)")
     parser.add_argument("--default-inputs", default=None,
                         help=f"the default schemes' --inputs instead of {DEFAULT_INPUTS_TEXT} (to measure another bank)")
+    parser.add_argument("--bound", action="store_true",
+                        help="print tools/quantisation_bound.py's lower bound for each held-out run, and the default over it")
     parser.add_argument("--quick", action="store_true", help="PSO 20 x 20 instead of the paper's 60 x 100, 10 x 10 inside auto")
     parser.add_argument("--imu", action="store_true",
                         help="three-axis IMU runs: fogd-train's default on every gyro and accelerometer, one table per channel")
@@ -240,9 +250,17 @@ def main() -> None:
                                      BARS[sensor.split()[0]])
                 continue
             rows = evaluate(args, thermal, resolution_c, sensor_hz)
+            bound = None
+            if args.bound:
+                import quantisation_bound  # tools/, beside this file: the same held-out runs
+
+                if quantisation_bound.HELD_OUT != HELD_OUT:
+                    raise SystemExit("tools/quantisation_bound.py's held-out runs differ from this table's")
+                extra = {} if args.hysteresis_dph is None else {"hysteresis_dph": args.hysteresis_dph}
+                bound = quantisation_bound.run_bounds(thermal, resolution_c, sensor_hz, args.rate_hz, args.seed, **extra)
             print_table(f"Navigation-grade gyro, {thermal} coil, {sensor} sensor; {args.rate_hz:g} Hz, seed {args.seed}"
                         f"{', PSO 20 x 20' if args.quick else ''}{hysteresis}: std of 100 s block means after 600 s / noise floor",
-                        rows, args.default_inputs)  # fmt: skip
+                        rows, args.default_inputs, bound)  # fmt: skip
 
 
 if __name__ == "__main__":
