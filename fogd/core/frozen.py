@@ -268,6 +268,12 @@ class FrozenModel:
     def predict_one(self, x: Sequence[float]) -> tuple[float, bool]:
         """`predict` for one row of Python floats: (thermal error in deg/h, True if an input was clamped)."""
         point = getattr(self.evaluator, "point", None)
+        rows = self.__dict__.get("_rows")
+        if rows is None:
+            rows = self._row_path()
+        if rows is not False:  # a large kernel model: its trend and kernel in a few numpy calls
+            comps, clamped_all = rows.predict_one(x)
+            return comps[0], clamped_all[0]
         if point is None:  # a plain callable evaluator: the array path
             comp, clamped = self.predict(np.asarray(x, dtype=np.float64))
             return float(comp[0]), bool(clamped[0])
@@ -295,6 +301,15 @@ class FrozenModel:
         if not clamped:  # (NaN inputs count as clamped, so a remembered row never holds one)
             object.__setattr__(self, "_last_point", (x, result))
         return result
+
+    def _row_path(self) -> StackedModels | bool:
+        """For a kernel model too large for a Python loop (POINT_NUMPY_WORK), the model alone as a stack: one
+        row through numpy in a few calls, trend included (a Python loop over a coil trend's monomials costs
+        more than the kernel); False for every other model."""
+        point = getattr(self.evaluator, "_point", None)
+        rows = StackedModels([self]) if isinstance(point, _GaussianPoint) and point.use_numpy else False
+        object.__setattr__(self, "_rows", rows)
+        return rows
 
     def _point_constants(self) -> tuple[tuple, ...]:
         constants = self.__dict__.get("_constants")
@@ -388,14 +403,23 @@ class StackedModels:
         self._y_scale = np.array([m.y_scale for m in models], dtype=np.float64)
         terms = [_stack_terms(model) for model in models]
         self._intercept = np.array([t[5] for t in terms], dtype=np.float64)
-        # trend: the monomials of every channel, each row reading its channel's scaled inputs
+        # trend: every channel's monomials; factor j of a monomial is x_j ** p read from a table of each
+        # channel's scaled input to the powers 0..max (the same np.power of the same floats, computed once per
+        # (input, channel, power) instead of once per monomial), then multiplied over the inputs in column order
+        powers = [np.asarray(t[0], dtype=np.int64).reshape(-1, d) for t in terms]
         t_sizes = [len(t[1]) for t in terms]
         self._t_cols = np.flatnonzero(t_sizes)
-        self._t_sizes = np.array(t_sizes, dtype=np.intp)
         self._t_starts = _starts(t_sizes)
-        self._powers = np.concatenate([np.asarray(t[0], dtype=np.float64).reshape(-1, d) for t in terms]).T[:, None, :].copy()
+        top = max((int(p.max()) for p in powers if p.size), default=0)
+        self._exponents = np.arange(top + 1, dtype=np.float64)
+        owner = np.repeat(np.arange(count), t_sizes)
+        every = np.concatenate(powers) if powers else np.empty((0, d), dtype=np.int64)
+        # index into the table flattened per row as (input, channel, power)
+        self._t_index = (np.arange(d)[:, None] * (count * (top + 1)) + owner[None, :] * (top + 1) + every.T).ravel()
+        self._t_terms = len(owner)
         self._coef = np.concatenate([np.asarray(t[1], dtype=np.float64) for t in terms])
-        # kernel: the centres of every channel, with their channel's -gamma and their weights
+        # kernel: the centres of every channel, each reading its channel's scaled inputs, with their channel's
+        # -gamma and their weights
         k_sizes = [len(t[3]) for t in terms]
         self._k_cols = np.flatnonzero(k_sizes)
         self._k_sizes = np.array(k_sizes, dtype=np.intp)
@@ -404,6 +428,7 @@ class StackedModels:
         self._weights = np.concatenate([np.asarray(t[3], dtype=np.float64) for t in terms])
         self._neg_gamma = np.repeat([-t[4] for t in terms], k_sizes).astype(np.float64)
         self._every_trend = len(self._t_cols) == count
+        self._every_kernel = len(self._k_cols) == count
         self._block_rows = max(1, _STACK_ELEMENTS // max(1, (len(self._coef) + len(self._weights)) * max(1, d)))
         self._last: tuple | None = None
 
@@ -431,11 +456,57 @@ class StackedModels:
         last = self._last
         if last is not None and last[0] == x:  # quantised inputs repeat sample after sample: exact reuse
             return last[1]
-        comp, clamped = self._evaluate(np.array([x], dtype=np.float64))
-        result = comp[0].tolist(), clamped[0].tolist()
+        result = self._one(x)
         if all(value == value for value in x):  # a NaN row is never remembered (NaN == NaN is False)
             self._last = (x, result)
         return result
+
+    def _one(self, x: tuple[float, ...]) -> tuple[list[float], list[bool]]:
+        """`_evaluate` of one row: the clamp, the scaling and the final affine map in Python floats (the very
+        IEEE operations numpy applies element by element, in the same order), the trend and kernel sums in
+        numpy on the (inputs, 1, models) block `_evaluate` forms."""
+        shifted, constants = self._shifted, self._row_constants
+        first = shifted[0] if shifted else -1
+        scaled: list[list[float]] = [[] for _ in x]
+        clamped = []
+        for lows, highs, means, scales in constants:
+            if shifted:  # clamp_rows: the temperature columns move by their first one's clip
+                value, low, high = x[first], lows[first], highs[first]
+                shift = (low if value < low else high if value > high else value) - value
+            was_clamped = False
+            for column, value in enumerate(x):
+                if column in shifted:
+                    used = value + shift
+                else:
+                    low, high = lows[column], highs[column]
+                    used = low if value < low else high if value > high else value  # np.clip; NaN stays NaN
+                if used != value:
+                    was_clamped = True
+                scaled[column].append((used - means[column]) / scales[column])
+            clamped.append(was_clamped)
+        xs = np.array(scaled, dtype=np.float64).reshape(len(x), 1, len(constants))
+        trend = self._trend(xs)[0].tolist() if len(self._t_cols) else []
+        kernel = self._kernel(xs)[0].tolist() if len(self._k_cols) else []
+        comps = []
+        for index, (has_trend, has_kernel, intercept, y_scale, y_mean) in enumerate(self._row_tail):
+            value = trend[has_trend] if has_trend >= 0 else 0.0
+            if has_kernel >= 0:
+                value = value + kernel[has_kernel]
+            comps.append((value + intercept) * y_scale + y_mean)
+        return comps, clamped
+
+    @property
+    def _row_constants(self) -> list[tuple[tuple, ...]]:
+        constants = self.__dict__.get("_constants")
+        if constants is None:
+            constants = self._constants = [model._point_constants() for model in self.models]
+            t_cols, k_cols = self._t_cols.tolist(), self._k_cols.tolist()
+            self._row_tail = [
+                (t_cols.index(k) if k in t_cols else -1, k_cols.index(k) if k in k_cols else -1, intercept, y_scale, y_mean)
+                for k, (intercept, y_scale, y_mean) in enumerate(zip(self._intercept.tolist(), self._y_scale.tolist(),
+                                                                     self._y_mean.tolist()))
+            ]  # fmt: skip
+        return constants
 
     def _blocks(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if len(x) <= self._block_rows:
@@ -465,7 +536,9 @@ class StackedModels:
             g = np.zeros(xs.shape[1:])
             if len(self._t_cols):
                 g[:, self._t_cols] = self._trend(xs)
-        if len(self._k_cols):
+        if self._every_kernel:
+            g += self._kernel(xs)
+        elif len(self._k_cols):
             g[:, self._k_cols] += self._kernel(xs)
         g += self._intercept
         g *= self._y_scale
@@ -473,21 +546,19 @@ class StackedModels:
         return g, clamped
 
     def _trend(self, xs: np.ndarray) -> np.ndarray:
-        terms = np.repeat(xs, self._t_sizes, axis=2)  # each monomial's row reads its model's inputs
-        np.power(terms, self._powers, out=terms)
-        monomials = terms[0]
-        for column in range(1, len(terms)):
-            monomials *= terms[column]
+        inputs, rows, models = xs.shape
+        # per row, (input, model, power) flattened
+        table = np.power(xs.transpose(1, 0, 2)[..., None], self._exponents).reshape(rows, inputs * models * len(self._exponents))
+        terms = table.take(self._t_index, axis=1).reshape(rows, inputs, self._t_terms)  # (rows, inputs, monomials)
+        monomials = np.multiply.reduce(terms, axis=1)  # x_0 ** p_0 * x_1 ** p_1 * ..., in column order
         monomials *= self._coef
         return np.add.reduceat(monomials, self._t_starts, axis=1)
 
     def _kernel(self, xs: np.ndarray) -> np.ndarray:
-        difference = np.repeat(xs, self._k_sizes, axis=2)  # each centre's row reads its model's inputs
+        difference = xs.repeat(self._k_sizes, axis=2)  # each centre's row reads its model's inputs
         difference -= self._centres
         np.multiply(difference, difference, out=difference)
-        squared = difference[0]
-        for column in range(1, len(difference)):
-            squared += difference[column]
+        squared = np.add.reduce(difference, axis=0)  # over the inputs, in column order
         squared *= self._neg_gamma
         np.exp(squared, out=squared)
         squared *= self._weights
