@@ -178,3 +178,50 @@ def test_stacked_channels_with_a_domain_guard_flag_and_fall_back_as_their_own(ch
 def test_one_channel_is_not_stacked():
     one = ChannelCompensator({"rate_dph": models()["accel_z_g"]}, RATE_HZ)
     assert one.stacked == ()
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    chunks=st.lists(st.integers(1, 40), max_size=8),
+    bad_temp=st.lists(st.integers(0, ROWS - 1), max_size=15),
+    bad_rate=st.lists(st.integers(0, ROWS - 1), max_size=15),
+    seed=st.integers(0, 3),
+)
+def test_process_row_is_process_few_of_one_sample(chunks, bad_temp, bad_rate, seed):
+    """The daemon's pre-bound one-sample path gives the floats and flags of `process_few` (a one-sample batch),
+    bit for bit, and leaves the same state behind: batches after a run of rows go on as after process_few."""
+    run = imu_run(seed, bad_temp, bad_rate)
+    stale = (np.arange(ROWS) % 53 == 0).tolist()
+    usable = {name: (np.arange(ROWS) % 97 != 0).tolist() if name == "rate_y_dph" else [True] * ROWS for name in models()}
+    by_row, by_few = ChannelCompensator(models(), RATE_HZ), ChannelCompensator(models(), RATE_HZ)
+    names = by_row.channels
+    values = {name: run.channels[name].tolist() for name in names}
+    temps = run.temp_c.tolist()
+    start = 0
+    for size in [*chunks, ROWS]:  # rows one by one, then a batch through process_few on both, alternately
+        stop = min(start + size, ROWS)
+        for i in range(start, stop):
+            temp_used, temp_rate, comps, outs, flags = by_row.process_row(
+                [values[n][i] for n in names], [usable[n][i] for n in names], temps[i], stale[i])
+            want = by_few.process_few({n: [values[n][i]] for n in names}, [temps[i]],
+                                      {n: [usable[n][i]] for n in names}, [stale[i]])  # fmt: skip
+            first = want[names[0]]
+            assert (np.float64(temp_used).tobytes(), np.float64(temp_rate).tobytes()) == (
+                np.float64(first.temp_c[0]).tobytes(), np.float64(first.temp_rate_cps[0]).tobytes())
+            for k, name in enumerate(names):
+                assert np.float64(comps[k]).tobytes() == np.float64(want[name].comp_dph[0]).tobytes(), name
+                assert np.float64(outs[k]).tobytes() == np.float64(want[name].rate_comp_dph[0]).tobytes(), name
+                assert flags[k] == want[name].flags[0], name
+        start = stop
+        if start >= ROWS:
+            break
+        stop = min(start + 7, ROWS)
+        batch = [by.process_few({n: values[n][start:stop] for n in names}, temps[start:stop],
+                                {n: usable[n][start:stop] for n in names}, stale[start:stop]) for by in (by_row, by_few)]
+        for name in names:
+            for field_name in NAMES:
+                assert np.asarray(getattr(batch[0][name], field_name)).tobytes() == \
+                    np.asarray(getattr(batch[1][name], field_name)).tobytes(), (name, field_name)
+        start = stop
+        if start >= ROWS:
+            break

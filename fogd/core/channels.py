@@ -279,6 +279,30 @@ class _Stack:
                 for index in range(count)]  # fmt: skip
 
 
+class _RowGroup:
+    """The channels of one input bank as `ChannelCompensator.process_row` evaluates them: the bank, its parts
+    (an evaluator returning (compensations, clamped) by channel for an input row, the channels' positions, the
+    domain guards by index in the part), and the compensators whose held temperature is the group's."""
+
+    def __init__(self, bank: InputBank, parts: list[tuple[Any, list[int], list[tuple[int, Any]]]],
+                 compensators: list[Compensator]) -> None:  # fmt: skip
+        self.bank = bank
+        self.parts = parts
+        self.compensators = compensators
+        self.rate_column = compensators[0]._rate_column
+        self.first = any(0 in channels for _, channels, _ in parts)  # holds the first channel: what is reported
+
+
+def _as_lists(predict_one: Any) -> Any:
+    """A model's `predict_one` ((value, clamped)) as a stack's ([value], [clamped])."""
+
+    def one(x: tuple[float, ...]) -> tuple[list[float], list[bool]]:
+        value, clamped = predict_one(x)
+        return [value], [clamped]
+
+    return one
+
+
 class ChannelCompensator:
     """Stateful, chunk-size independent compensation of several channels from one temperature: each channel
     with its own frozen model, the inputs computed once per batch for each distinct input configuration."""
@@ -310,6 +334,7 @@ class ChannelCompensator:
                 self._stacks.append(_Stack(stackable, [self.compensators[channel] for channel in stackable], view))
         stacked = {channel for stack in self._stacks for channel in stack.channels}
         self._alone = {channel: compensator for channel, compensator in self.compensators.items() if channel not in stacked}
+        self._rows = self._row_groups()
 
     @property
     def channels(self) -> tuple[str, ...]:
@@ -380,6 +405,91 @@ class ChannelCompensator:
                                         [rate_valid[channel] for channel in stack.channels], temp_stale)  # fmt: skip
             out.update(zip(stack.channels, results))
         return out if len(self._stacks) == 0 else {channel: out[channel] for channel in self.compensators}
+
+    def _row_groups(self) -> list[_RowGroup]:
+        """What `process_row` walks: per input bank, its stack (if any) and each of its channels alone."""
+        position = {channel: index for index, channel in enumerate(self.compensators)}
+        groups = []
+        for shared in self._banks.values():
+            parts: list[tuple[Any, list[int], list[tuple[int, Any]]]] = []
+            compensators: list[Compensator] = []
+            for stack in self._stacks:
+                if stack.view._shared is shared:
+                    parts.append((stack.models.predict_one, [position[c] for c in stack.channels], stack.guards))
+                    compensators += stack.compensators
+            for channel, compensator in self._alone.items():
+                if compensator.bank._shared is shared:  # type: ignore[attr-defined]
+                    guards = [(0, compensator.guard)] if compensator.guard is not None else []
+                    parts.append((_as_lists(compensator.model.predict_one), [position[channel]], guards))
+                    compensators.append(compensator)
+            groups.append(_RowGroup(shared.bank, parts, compensators))
+        return groups
+
+    def process_row(
+        self, values: list[float], usable: list[bool], temp_c: float, temp_stale: bool
+    ) -> tuple[float, float, list[float], list[float], list[int]]:
+        """`process_few` of one sample, pre-bound: every channel's reading and usability in `channels` order,
+        the temperature held for the sample and whether it is stale. Returns (the first channel's temperature
+        used and temperature rate, then per channel its compensation, compensated reading and flags): the very
+        floats and flags `process_few` gives for a one-sample batch, in plain Python (no per-row numpy call
+        outside a large model's kernel), the inputs computed once per input bank."""
+        low_c, high_c = TEMP_VALID_C
+        count = len(values)
+        comps, outs, flags_out = [0.0] * count, [0.0] * count, [0] * count
+        temp_used = temp_rate = 0.0
+        for group in self._rows:
+            compensators = group.compensators
+            flags = 0
+            held = compensators[0]._held_temp_c
+            if low_c <= temp_c <= high_c:  # (NaN is not)
+                held = temp_c
+            else:
+                flags |= _TEMP_INVALID
+            for compensator in compensators:
+                compensator._held_temp_c = held
+            rate = 0.0
+            x = None
+            if held == held:  # a valid temperature has been seen
+                bank = group.bank
+                if bank.count < bank.warmup:
+                    flags |= _WARMUP
+                x = bank.update_one(held)
+                if group.rate_column is not None:
+                    rate = x[group.rate_column]
+            else:
+                flags |= _WARMUP
+            if temp_stale:
+                flags |= _TEMP_STALE
+            for predict_one, channels, guards in group.parts:
+                if x is not None:
+                    part_comps, clamped = predict_one(x)
+                    outside = None
+                    if guards and not flags & _WARMUP:
+                        for index, guard in guards:
+                            if guard.outside(np.array(x))[0]:
+                                if outside is None:
+                                    part_comps, outside = list(part_comps), [False] * len(part_comps)
+                                part_comps[index] = guard.fallback.predict_one(x)[0]
+                                outside[index] = True
+                for index, channel in enumerate(channels):
+                    own, comp = flags, 0.0
+                    if x is not None:
+                        comp = part_comps[index]
+                        if clamped[index]:
+                            own |= _CLAMPED
+                        if outside is not None and outside[index]:
+                            own |= _OUT_OF_DOMAIN
+                    value = values[channel]
+                    if usable[channel] and math.isfinite(value):
+                        outs[channel] = value - comp
+                    else:
+                        own |= _RATE_INVALID
+                        outs[channel] = value
+                    comps[channel] = comp
+                    flags_out[channel] = own
+            if group.first:
+                temp_used, temp_rate = held, rate
+        return temp_used, temp_rate, comps, outs, flags_out
 
     def _begin(self) -> None:
         for shared in self._banks.values():

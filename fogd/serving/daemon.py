@@ -33,6 +33,7 @@ import numpy as np
 
 from fogd import __version__
 from fogd.core.channels import ChannelCompensator, ChannelModels
+from fogd.core.compensator import Compensated
 from fogd.core.estimator import SCALAR_CHUNK
 from fogd.core.flags import Flag, describe
 from fogd.core.frozen import FrozenModel
@@ -221,7 +222,8 @@ class Daemon:
         self.status_interval_s = status_interval_s
         self.duration_s = duration_s
         self.counters = LoopCounters()
-        self.latest = Latest()
+        self._latest = Latest()
+        self._newest: tuple | None = None  # (readings, first channel's, every channel's) of the newest batch
         self.latency = Latency()
         self._stop = threading.Event()
         self.clock = SampleClock(rate_hz)
@@ -440,39 +442,112 @@ class Daemon:
 
     def compensate(self, frames: list[Frame], t_rx_s: list[float]) -> OutputBatch:
         """One channel-compensator call for every rate sample in `frames` (received at `t_rx_s`), every
-        covered channel at once."""
+        covered channel at once; a few frames (a batch at real rates is one) go row by row through the
+        compensator's pre-bound `process_row`, in plain Python."""
+        if len(frames) <= SCALAR_CHUNK:
+            return self._compensate_rows(frames, t_rx_s)
         samples = self.temperature.channel_samples(frames, t_rx_s, self.plan.sources)
         rows, temp_c, names = samples.rows, samples.temp_c, self._names
         stale_s = self.temp_stale_s
         stale = [age_s > stale_s for age_s in samples.temp_age_s]
-        if len(rows) <= SCALAR_CHUNK:  # a frame or two at real rates: no numpy on the way in
-            comps = self.compensator.process_few(dict(zip(names, samples.values)), temp_c,
-                                                 dict(zip(names, samples.usable)), stale)  # fmt: skip
-        else:
-            comps = self.compensator.process(
-                {name: np.array(values, dtype=np.float64) for name, values in zip(names, samples.values)},
-                np.array(temp_c, dtype=np.float64),
-                rate_valid={name: np.array(ok, dtype=bool) for name, ok in zip(names, samples.usable)},
-                temp_stale=np.array(stale, dtype=bool),
-            )  # fmt: skip
+        comps = self.compensator.process(
+            {name: np.array(values, dtype=np.float64) for name, values in zip(names, samples.values)},
+            np.array(temp_c, dtype=np.float64),
+            rate_valid={name: np.array(ok, dtype=bool) for name, ok in zip(names, samples.usable)},
+            temp_stale=np.array(stale, dtype=bool),
+        )  # fmt: skip
         comp = comps[names[0]]
-        self.counters.samples_compensated += len(rows)
         self._count_domain(comp.flags if len(names) == 1 else _any_flags(comps.values()))
+        return self._batch(frames, t_rx_s, rows, samples.device_s, samples.values[0], comp, comps)
+
+    def _compensate_rows(self, frames: list[Frame], t_rx_s: list[float]) -> OutputBatch:
+        """`compensate` of a few frames, one `process_row` per rate frame; the same floats and flags."""
+        hold = self.temperature
+        held_c, held_rx_s = hold.temp_c, hold.rx_s
+        stale_s, row, read = self.temp_stale_s, self.compensator.process_row, self._read
+        count = len(self._names)
+        rows, device_s, readings, temps, temp_rates = [], [], [], [], []
+        comps: list[list[float]] = [[] for _ in range(count)]
+        outs: list[list[float]] = [[] for _ in range(count)]
+        flags: list[list[int]] = [[] for _ in range(count)]
+        out_of_domain = clamped = 0
+        for index, frame in enumerate(frames):
+            kind = frame.kind
+            if kind in TEMP_KINDS and frame.temp_c is not None:
+                held_c, held_rx_s = frame.temp_c, t_rx_s[index]
+            if kind not in RATE_KINDS:
+                continue
+            values, usable = read(frame)
+            temp_used, temp_rate, row_comps, row_outs, row_flags = row(values, usable, held_c,
+                                                                       t_rx_s[index] - held_rx_s > stale_s)  # fmt: skip
+            rows.append(index)
+            device_s.append(frame.t_s)
+            readings.append(values[0])
+            temps.append(temp_used)
+            temp_rates.append(temp_rate)
+            any_flags = 0
+            for k in range(count):
+                comps[k].append(row_comps[k])
+                outs[k].append(row_outs[k])
+                flags[k].append(row_flags[k])
+                any_flags |= row_flags[k]
+            if any_flags & _OUT_OF_DOMAIN:
+                out_of_domain += 1
+            if any_flags & _CLAMPED:
+                clamped += 1
+        hold.temp_c, hold.rx_s = held_c, held_rx_s
+        self.counters.samples_out_of_domain += out_of_domain
+        self.counters.samples_clamped += clamped
+        # every channel's temperature columns are the first channel's (what every output format reports)
+        results = {name: Compensated(temps, temp_rates, comps[k], outs[k], flags[k])  # type: ignore[arg-type]
+                   for k, name in enumerate(self._names)}  # fmt: skip
+        return self._batch(frames, t_rx_s, rows, device_s, readings, results[self._names[0]], results)
+
+    def _read(self, frame: Frame) -> tuple[list[float], list[bool]]:
+        """A rate frame's reading and usability of every covered channel (an accelerometer a frame lacks is NaN
+        and unusable)."""
+        values, usable = [], []
+        for accel, axis in self.plan.sources:
+            if not accel:
+                values.append(frame.rate_dph[axis])
+                usable.append(frame.axis_valid[axis] and frame.axis_present[axis])
+            elif frame.accel_g is None:
+                values.append(_NAN)
+                usable.append(False)
+            else:
+                values.append(frame.accel_g[axis])
+                usable.append(frame.accel_valid[axis] and frame.accel_present[axis])
+        return values, usable
+
+    def _batch(self, frames: list[Frame], t_rx_s: list[float], rows: list[int], device_s: list[float | None],
+               readings: list[float], comp: Compensated, comps: dict[str, Compensated]) -> OutputBatch:  # fmt: skip
+        """The compensated batch for the formatter; counters, latency and the newest sample noted."""
+        self.counters.samples_compensated += len(rows)
         if frames:
             latency_s = time.monotonic() - t_rx_s[0]  # the oldest frame waited longest
             self.latency.last_s = latency_s
             if latency_s > self.latency.max_s:
                 self.latency.max_s = latency_s
         if rows:
-            self.latest = Latest(
-                samples.values[0][-1], float(comp.comp_dph[-1]), float(comp.rate_comp_dph[-1]), float(comp.temp_c[-1]),
+            self._newest = (readings, comp, comps)  # made into `latest` only when someone reads it
+        times = self.clock.times(device_s)
+        t_s = times if len(frames) <= SCALAR_CHUNK else np.array(times, dtype=np.float64)
+        return OutputBatch(frames, rows, t_s, comp, None if self.plan.single else comps)
+
+    @property
+    def latest(self) -> Latest:
+        """The newest compensated sample (for the status line, systemd and the stats file)."""
+        newest = self._newest
+        if newest is not None:
+            readings, comp, comps = newest
+            self._latest = Latest(
+                float(readings[-1]), float(comp.comp_dph[-1]), float(comp.rate_comp_dph[-1]), float(comp.temp_c[-1]),
                 float(comp.temp_rate_cps[-1]), int(comp.flags[-1]),
                 None if self.plan.single else {name: {"comp": float(one.comp_dph[-1]), "flags": int(one.flags[-1])}
                                                for name, one in comps.items()},
             )  # fmt: skip
-        times = self.clock.times(samples.device_s)
-        t_s = times if len(rows) <= SCALAR_CHUNK else np.array(times, dtype=np.float64)
-        return OutputBatch(frames, rows, t_s, comp, None if self.plan.single else comps)
+            self._newest = None
+        return self._latest
 
     def _count_domain(self, flags: np.ndarray | list[int]) -> None:
         """Running counts of the samples flagged OUT_OF_DOMAIN and CLAMPED."""
