@@ -186,3 +186,35 @@ def test_encode_decode_round_trip(rate_dph, valid, seq, temp_c, message, time_us
         assert frame.rate_dph[axis] == pytest.approx(rate_dph[axis], rel=1e-7, abs=1e-30)
     assert frame.temp_c == (None if message == "C" and seq % 4 else temp_c)
     assert frame.t_s == (pytest.approx(time_us / 1e6, abs=1e-9) if message == "B" else None)
+
+
+@given(
+    floats=st.lists(st.floats(width=32), min_size=6, max_size=6),
+    status=st.integers(0, 255),
+    seq=st.integers(0, 255),
+    temp=st.integers(-32768, 32767),
+    flip=st.one_of(st.none(), st.integers(0, 36 * 8 - 1)),
+    before=st.binary(max_size=3),
+    options=st.sampled_from([{}, {"temp_unit": "F"}, {"rotfmt": "delta", "rate_hz": 1000.0}, {"linfmt": "delta", "rate_hz": 100.0}]),
+)
+def test_the_lexers_fast_path_decodes_as_decode(floats, status, seq, temp, flip, before, options):
+    """KvhProtocol.decode_fast (the lexer's Format A path) gives decode's frame, field for field, or None where
+    decode would refuse the bytes (a flipped bit, another header): never a different frame."""
+    protocol = KvhProtocol(**options)
+    body = b"\xfe\x81\xff\x55" + struct.pack(">3f3fBBh", *floats, status, seq, temp)
+    raw = bytearray(body + struct.pack(">I", crc32_mpeg2(body)))
+    if flip is not None:
+        raw[flip // 8] ^= 1 << (flip % 8)
+    buf = before + bytes(raw)
+    got = protocol.decode_fast(buf, len(before))
+    try:
+        want = protocol.decode(bytes(raw))
+    except (FrameError, ValueError):
+        assert got is None
+        return
+    if got is None:
+        assert raw[:4] != b"\xfe\x81\xff\x55"
+        return
+    frame, length = got
+    assert length == 36
+    assert repr(frame) == repr(want)  # every field, NaN included

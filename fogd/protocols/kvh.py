@@ -12,13 +12,14 @@ them back into the unit's wire values. The replies to the unit's ASCII queries (
 into the same settings by `settings_from_replies`.
 """
 
+import binascii
 import math
 import struct
 from collections.abc import Sequence
 
 from ..errors import ConfigError
 from .base import ALL_AXES, NAN, Axes3, Frame, FrameError, Mask3, Protocol
-from .crc import crc32_mpeg2, crc32_mpeg2_ok
+from .crc import MIRRORED_BYTES, crc32_mpeg2, crc32_mpeg2_ok
 from .fogdbin import f32
 
 HEADER_A = b"\xfe\x81\xff\x55"
@@ -107,6 +108,7 @@ class KvhProtocol(Protocol):
         # delta velocity (m/s or ft/s per sample) x samples per second = m/s^2 or ft/s^2
         metres = 1.0 if lin_unit == "m" else M_PER_FT
         self.g_per_unit = rate_hz * metres / STANDARD_GRAVITY_MS2 if linfmt == "delta" else 1.0
+        self._plain = temp_unit == "C" and linfmt == "accel"  # decode_fast's frames need no unit conversion
         self._decoders = {
             HEADER_A: self._decode_a,
             HEADER_B: self._decode_b,
@@ -119,6 +121,22 @@ class KvhProtocol(Protocol):
         if len(buf) - start < 4:
             return 0
         return FRAME_LENGTHS.get(buf[start : start + 4], -1)
+
+    def decode_fast(self, buf: bytes, start: int) -> tuple[Frame, int] | None:
+        """The lexer's fast path: a whole Format A frame with a good CRC at `start` of `buf`, decoded as
+        `decode` does, with its length; None for anything else (the lexer's general path takes it)."""
+        if buf[start : start + 4] != HEADER_A or len(buf) - start < 36:
+            return None
+        raw = buf[start : start + 36] if start or len(buf) != 36 else buf
+        if binascii.crc32(raw.translate(MIRRORED_BYTES)) != 0xFFFFFFFF:  # crc32_mpeg2_ok, inlined
+            return None
+        x, y, z, ax, ay, az, status, seq, temp = _BODY_A.unpack_from(raw, 4)
+        if status & 0x77 == 0x77 and self._plain:
+            scale, isfinite = self.dph_per_unit, math.isfinite
+            if isfinite(x) and isfinite(y) and isfinite(z) and isfinite(ax) and isfinite(ay) and isfinite(az):
+                return Frame("kvh-a", "imu", "A", seq, None, (x * scale, y * scale, z * scale), ALL_AXES, ALL_AXES,
+                             float(temp), raw, None, None, None, 0, (ax, ay, az), ALL_AXES, ALL_AXES), 36  # fmt: skip
+        return self._decode_a(raw), 36
 
     def decode(self, raw: bytes) -> Frame:
         decoder = self._decoders.get(raw[:4])
@@ -240,7 +258,9 @@ class KvhProtocol(Protocol):
             for axis in self.comp_accel_axes:
                 if frame.accel_valid[axis]:
                     _GYRO.pack_into(out, 16 + 4 * axis, f32(accel_g[axis] / self.g_per_unit))
-        _CRC.pack_into(out, len(out) - 4, crc32_mpeg2(out[:-4]))
+        # crc32_mpeg2 packed big-endian: the mirrored register's little-endian bytes, each mirrored back
+        reflected = binascii.crc32(out[:-4].translate(MIRRORED_BYTES)) ^ 0xFFFFFFFF
+        out[-4:] = reflected.to_bytes(4, "little").translate(MIRRORED_BYTES)
         return bytes(out)
 
 

@@ -117,8 +117,18 @@ class Lexer:
         single = self.protocols[0] if len(self.protocols) == 1 else None
         find = single.find if single is not None else None
         account, append = self._account, frames.append
+        fast = getattr(single, "decode_fast", None)
         pos = 0
         while True:
+            if fast is not None and pos < end:  # the protocol's usual frame right here, checked and decoded at once
+                got = fast(buf, pos)
+                if got is not None:
+                    frame, length = got
+                    counters.frame_bytes += length
+                    pos += length
+                    append(frame)
+                    account(frame, single)
+                    continue
             if find is not None:
                 protocol, start = single, find(buf, pos)
             else:
