@@ -12,6 +12,10 @@ less than six compensators. Each channel's temperatures, rates and flags are a `
 for bit, its compensation within 1e-12 relative (the kernel and trend sums run in another order); streaming
 equals batch bit for bit, whatever the batch sizes (a row's floats are the same alone or in a block). A channel
 alone on its bank (a single-axis model above all) goes through its own `Compensator`, exactly as before.
+
+`ChannelCompensator.process_row` is the daemon's one-sample form (its batches at real rates are one frame):
+the same policies and the same evaluators, pre-bound per input bank, in plain Python floats, giving the floats
+and flags of `process_few` for that sample bit for bit and leaving the same state behind.
 """
 
 from __future__ import annotations

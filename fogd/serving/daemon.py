@@ -1,6 +1,7 @@
 """The daemon's compensation loop and lifecycle: it pops batches of samples from the ring the reader fills,
-holds the latest temperature for each rate sample, runs the shared `Compensator` once per batch on the
-configured axis, hands the encoded output to the writer thread, watches both threads, logs a periodic status
+holds the latest temperature for each rate sample, runs the shared channel compensator once per batch on the
+covered channels (a batch of a few frames, the usual one at real rates, row by row through its pre-bound
+`process_row`), hands the encoded output to the writer thread, watches both threads, logs a periodic status
 line, and on stop drains the ring and flushes the writer.
 
 Temperature may arrive in its own frames at its own rate: each rate sample gets the newest temperature that
