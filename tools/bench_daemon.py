@@ -36,12 +36,14 @@ round in one run; --design-stages adds the prototype cut after poll, lexing and 
 cost in situ, cold caches included, which the in-process (e) misses); --design-rates adds rate steps.
 
 Usage: python tools/bench_daemon.py [--quick] [--strict]
+       python tools/bench_daemon.py --stages [--quick]   (only (e), for the demo and lag-bank models, 1 to 6 channels)
        python tools/bench_daemon.py --design ROUNDS [--design-stages] [--design-rates HZ ...] [--quick]
 """
 
 from __future__ import annotations
 
 import argparse
+import gc
 import math
 import os
 import select
@@ -435,7 +437,10 @@ def measure(label: str, command, rates: list[float], step_s: float, latency_s: f
 def stage_costs(model_path: str, batch_frames: int, calls: int) -> list[list[object]]:
     """Microseconds per call of each stage the daemon runs for a batch of `batch_frames` frames, in this process
     with fogd's own classes (cProfile sees only the daemon's main thread; this splits every thread's work).
-    The syscalls are the reader's poll and read on a pty and the loop's write to /dev/null."""
+    The syscalls are the reader's poll and read on a pty and the loop's write to /dev/null. Times are this
+    thread's CPU time (time.thread_time), so a machine busy with other work does not inflate them; the
+    collector is off while timing (the daemon freezes what it loads, so its collections are short)."""
+    clock = time.thread_time
     from types import SimpleNamespace
 
     from fogd.core import modelfile
@@ -469,36 +474,41 @@ def stage_costs(model_path: str, batch_frames: int, calls: int) -> list[list[obj
     process_s = [0.0]
 
     def timed_process(*a, **k):
-        start = time.perf_counter()
+        start = clock()
         try:
             return process(*a, **k)
         finally:
-            process_s[0] += time.perf_counter() - start
+            process_s[0] += clock() - start
 
     setattr(daemon.compensator, process.__name__, timed_process)
-    for _ in range(calls):
-        os.write(gyro.master, data)
-        time.sleep(0.0005)  # the pty passes the bytes on meanwhile: the polls below find them ready, no sleep
-        got = b""
-        t0 = time.perf_counter()
-        while len(got) < len(data):
-            poller.poll(100)
-            got += os.read(gyro.slave, READ_MAX_BYTES)
-        t1 = time.perf_counter()
-        frames = lexer.feed(got)
-        t2 = time.perf_counter()
-        ring.push(frames, t2)
-        ring.wait(0.0)
-        popped, t_rx_s = ring.pop(MAX_BATCH)
-        t3 = time.perf_counter()
-        out = daemon.compensate(popped, t_rx_s)
-        t4 = time.perf_counter()
-        chunk = formatter.encode(out)
-        t5 = time.perf_counter()
-        os.write(sink, chunk.data)
-        t6 = time.perf_counter()
-        for key, seconds in zip(names[:4] + names[5:], (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4, t6 - t5)):
-            totals[key] += seconds
+    gc.collect()
+    gc.disable()
+    try:
+        for _ in range(calls):
+            os.write(gyro.master, data)
+            time.sleep(0.0005)  # the pty passes the bytes on meanwhile: the polls below find them ready, no sleep
+            got = b""
+            t0 = clock()
+            while len(got) < len(data):
+                poller.poll(100)
+                got += os.read(gyro.slave, READ_MAX_BYTES)
+            t1 = clock()
+            frames = lexer.feed(got)
+            t2 = clock()
+            ring.push(frames, time.monotonic())
+            ring.wait(0.0)
+            popped, t_rx_s = ring.pop(MAX_BATCH)
+            t3 = clock()
+            out = daemon.compensate(popped, t_rx_s)
+            t4 = clock()
+            chunk = formatter.encode(out)
+            t5 = clock()
+            os.write(sink, chunk.data)
+            t6 = clock()
+            for key, seconds in zip(names[:4] + names[5:], (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4, t6 - t5)):
+                totals[key] += seconds
+    finally:
+        gc.enable()
     os.close(sink)
     gyro.close()
     totals[names[4]] = process_s[0]
@@ -543,7 +553,22 @@ def main(argv: list[str] | None = None) -> int:
                         help="with --design: also the prototype cut after each stage (poll, lex, compensate)")
     parser.add_argument("--design-rates", type=float, nargs="*", default=[],
                         help="with --design: also step through these rates for the max zero-loss rate")
+    parser.add_argument("--stages", action="store_true",
+                        help="only the in-process stage costs (3e): the demo model, and fogd-train's lag-bank model on "
+                             "one channel, the three gyros and all six channels")  # fmt: skip
     args = parser.parse_args(argv)
+    if args.stages:
+        print(machine())
+        calls = 200 if args.quick else 2000
+        with tempfile.TemporaryDirectory() as scratch:
+            lag_model = Path(lag_bank_model(Path(scratch) / "lag-bank.json"))
+            for label, path in (("demo model, one axis", args.model), ("lag-bank model, one axis", str(lag_model)),
+                                ("lag-bank model, three gyros", str(three_channel_path(lag_model))),
+                                ("lag-bank model, six channels", str(six_channel_path(lag_model)))):  # fmt: skip
+                for batch in (1, 40):
+                    print_table(f"3e. {label}, batches of {batch} frame(s): CPU time per stage (in-process)",
+                                ["stage", "us per batch", "us per frame", "share"], stage_costs(path, batch, calls))  # fmt: skip
+        return 0
     if args.design:
         print(machine())
         quick = 0.5 if args.quick else None
