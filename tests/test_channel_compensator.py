@@ -225,3 +225,24 @@ def test_process_row_is_process_few_of_one_sample(chunks, bad_temp, bad_rate, se
         start = stop
         if start >= ROWS:
             break
+
+
+def test_process_row_goes_on_with_a_bank_handed_over():
+    """A reload hands the running input banks and held temperatures to a new compensator (serving.daemon's
+    _carry_state): process_row must go on from them, not from the new compensator's own fresh banks."""
+    import copy
+
+    run = imu_run(0, [], [])
+    names = list(models())
+    rows = [([run.channels[n][i] for n in names], [True] * len(names), run.temp_c[i]) for i in range(ROWS)]
+    running = ChannelCompensator(models(), RATE_HZ)
+    for values, usable, temp in rows[:300]:
+        running.process_row(values, usable, temp, False)
+    same = copy.deepcopy(running)
+    new = ChannelCompensator(models(), RATE_HZ)
+    for inputs, shared in new._banks.items():
+        shared.bank = running._banks[inputs].bank
+    for channel, compensator in new.compensators.items():
+        compensator._held_temp_c = running.compensators[channel]._held_temp_c
+    for values, usable, temp in rows[300:320]:
+        assert repr(new.process_row(values, usable, temp, False)) == repr(same.process_row(values, usable, temp, False))

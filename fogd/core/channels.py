@@ -284,13 +284,13 @@ class _Stack:
 
 
 class _RowGroup:
-    """The channels of one input bank as `ChannelCompensator.process_row` evaluates them: the bank, its parts
+    """The channels of one input bank as `ChannelCompensator.process_row` evaluates them: the shared bank, its parts
     (an evaluator returning (compensations, clamped) by channel for an input row, the channels' positions, the
     domain guards by index in the part), and the compensators whose held temperature is the group's."""
 
-    def __init__(self, bank: InputBank, parts: list[tuple[Any, list[int], list[tuple[int, Any]]]],
+    def __init__(self, shared: _SharedBank, parts: list[tuple[Any, list[int], list[tuple[int, Any]]]],
                  compensators: list[Compensator]) -> None:  # fmt: skip
-        self.bank = bank
+        self.shared = shared
         self.parts = parts
         self.compensators = compensators
         self.rate_column = compensators[0]._rate_column
@@ -426,7 +426,7 @@ class ChannelCompensator:
                     guards = [(0, compensator.guard)] if compensator.guard is not None else []
                     parts.append((_as_lists(compensator.model.predict_one), [position[channel]], guards))
                     compensators.append(compensator)
-            groups.append(_RowGroup(shared.bank, parts, compensators))
+            groups.append(_RowGroup(shared, parts, compensators))
         return groups
 
     def process_row(
@@ -454,7 +454,7 @@ class ChannelCompensator:
             rate = 0.0
             x = None
             if held == held:  # a valid temperature has been seen
-                bank = group.bank
+                bank = group.shared.bank  # read at each call: a reload hands a warm bank over (serving.daemon)
                 if bank.count < bank.warmup:
                     flags |= _WARMUP
                 x = bank.update_one(held)
