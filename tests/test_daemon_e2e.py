@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from stopping import stop
 from test_hardening import model_document
 
 from fogd.cli import replay
@@ -86,8 +87,7 @@ class Fogd:
 
     def terminate(self, timeout_s: float = 10.0) -> tuple[int, float]:
         started = time.monotonic()
-        self.process.send_signal(signal.SIGTERM)
-        status = self.process.wait(timeout_s)
+        status = stop(self.process, lambda: self.stderr, timeout_s)
         return status, time.monotonic() - started
 
     def counters(self) -> dict:
@@ -380,6 +380,24 @@ def test_sigterm_while_streaming_exits_zero_with_whole_rows_flushed(tmp_path, gy
     text = out.read_text()
     assert text.endswith("\n")
     assert text.count("\n") - 1 == fogd.counters()["writer"]["frames_written"]
+
+
+def test_sigabrt_writes_every_threads_stack_to_stderr(tmp_path, gyro, model_path):
+    """What systemd's watchdog sends a hung daemon (SIGABRT) leaves, in the journal, where each thread was:
+    the loop waiting in the daemon, the reader polling the port."""
+    fogd = start_fogd(tmp_path, gyro.path, model_path)
+    try:
+        gyro.write(b"".join(wire_frames("kvh-a", run_samples("kvh-a"))))
+        fogd.wait_for("fogd.daemon: model")
+        fogd.process.send_signal(signal.SIGABRT)
+        status = fogd.process.wait(10)
+    finally:
+        fogd.kill()
+    assert status == -signal.SIGABRT, fogd.stderr
+    stacks = fogd.stderr.split("Fatal Python error: Aborted", 1)[1]
+    assert stacks.count("most recent call first") >= 3, stacks  # main, reader, writer
+    for module in ("fogd/serving/daemon.py", "fogd/serving/reader.py", "fogd/serving/outputs.py"):
+        assert module in stacks, stacks
 
 
 def one_line_failure(tmp_path: Path, *args: str) -> tuple[int, str]:

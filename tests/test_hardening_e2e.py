@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from stopping import stop
 from test_daemon_e2e import (  # noqa: F401  # noqa: F401  (fixtures)
     FOGD,
     Emu,
@@ -310,8 +311,7 @@ def test_two_thousand_idle_metrics_connections_cost_no_gyro_data(tmp_path, model
             assert "fogd_frames_in_total" in response.read().decode()
         written = json.loads(stats.read_text())["time_unix_s"]
         assert time.time() - written < 10.0  # the stats file is still rewritten
-        process.send_signal(signal.SIGTERM)
-        assert process.wait(30) == 0
+        assert stop(process, stderr_path.read_text, 30) == 0
     finally:
         for connection in idle:
             connection.close()

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -20,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from stopping import stop
 
 from fogd.cli import replay, top
 from fogd.core import modelfile
@@ -85,8 +85,7 @@ def through_fogd(tmp_path: Path, model: Path, emu_options: list[str], fogd_optio
                                     stdout=subprocess.DEVNULL, stderr=stderr)  # fmt: skip
         assert emu.wait(60) == 0, emu.stderr.read()
         wait_for(out, done, "whole output")
-        fogd.send_signal(signal.SIGTERM)
-        assert fogd.wait(10) == 0, stderr_path.read_text()
+        assert stop(fogd, stderr_path.read_text) == 0, stderr_path.read_text()
     finally:
         for process in (emu, fogd):
             if process is not None and process.poll() is None:

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from stopping import stop
 from test_daemon_e2e import (  # noqa: F401
     FOGD,
     RATE_HZ,
@@ -123,8 +124,7 @@ def test_notify_status_metrics_and_sigterm(tmp_path, model_path):
             metrics = response.read().decode()
         assert 'fogd_frames_in_total{kind="imu"}' in metrics and "fogd_connected 1.0" in metrics
         started = time.monotonic()
-        process.send_signal(signal.SIGTERM)
-        assert process.wait(5) == 0
+        assert stop(process, stderr_path.read_text, 5) == 0
         assert time.monotonic() - started < 2.0
     finally:
         if process.poll() is None:

@@ -1,12 +1,14 @@
 """`fogd`: the real-time daemon. Reads a FOG's serial port, compensates one gyro axis for temperature with a
 frozen model and writes the result to a sink. This module owns the command line, wiring the parts together and
-the signals (SIGTERM/SIGINT stop, SIGHUP reload, SIGUSR1 counters); settings and the config file live in
-fogd.serving.config, the threads in fogd.serving.reader, fogd.serving.daemon and fogd.serving.outputs.
+the signals (SIGTERM/SIGINT stop, SIGHUP reload, SIGUSR1 counters, SIGABRT every thread's stack); settings and
+the config file live in fogd.serving.config, the threads in fogd.serving.reader, fogd.serving.daemon and
+fogd.serving.outputs.
 """
 
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import json
 import logging
 import os
@@ -65,7 +67,7 @@ def parser() -> ArgumentParser:
         "subtracts the model's thermal error f(T, dT/dt) from one axis (a single-axis model, --axis) or from every "
         "gyro and accelerometer a three-axis model covers, and writes the result to --out. "
         "SIGTERM or SIGINT stop cleanly (output flushed, exit 0); SIGHUP reloads the config and the model; "
-        "SIGUSR1 logs the counters.",
+        "SIGUSR1 logs the counters; SIGABRT (systemd's watchdog) writes every thread's stack to stderr, then aborts.",
         epilog=f"Config keys: {', '.join(OPTION_BY_KEY)} (see config/fogd.yaml). Without --config, "
         f"{config.CONFIG_DIR}/INSTANCE.yaml or {config.CONFIG_DIR}/fogd.yaml is read when it exists "
         f"(${config.CONFIG_DIR_ENV} moves that directory). Output flags bits: "
@@ -321,6 +323,9 @@ def serve(settings: dict[str, Any], protocol: protocols.Protocol, model, *, on_d
             port.close()
             daemon.writer.sink.close()
             raise
+    # A hung daemon says where: systemd's watchdog (WatchdogSignal, SIGABRT by default) or `kill -ABRT` makes
+    # faulthandler write every thread's stack to stderr, the journal, before the process dies.
+    faulthandler.enable()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: daemon.stop())
     signal.signal(signal.SIGHUP, lambda *_: daemon.request_reload())
