@@ -1,6 +1,8 @@
 """The reader-to-compensator ring of frame batches: order, splitting, overruns, receive times, and any
 interleaving of pushes and pops, also with the producer on another thread."""
 
+import subprocess
+import sys
 import threading
 
 from hypothesis import given, settings
@@ -97,3 +99,38 @@ def test_a_producer_thread_and_a_consumer_keep_order_and_account_for_every_frame
     got.extend(seqs(ring.pop()))
     assert got == sorted(got) and len(set(got)) == len(got)
     assert len(got) + ring.overruns == total
+
+
+def test_a_wake_makes_the_wait_return_and_pop_passes_over_it():
+    ring = Ring(8)
+    ring.wake()
+    assert ring.wait(60.0)  # at once: nothing else would end a minute's wait here
+    assert ring.pop() == ([], []) and len(ring) == 0
+    ring.push(numbered(0, 2), 1.0)
+    ring.wake()
+    ring.push(numbered(2, 1), 2.0)
+    assert seqs(ring.pop()) == [0, 1, 2] and len(ring) == 0
+
+
+# A main thread waiting on the ring while a signal handler (fogd's SIGTERM, SIGHUP, SIGUSR1) runs in the wait and
+# ends past its deadline: with CPython 3.11's SimpleQueue the wait then went on with no deadline at all.
+SIGNALLED_WAITS = """
+import signal, time
+from fogd.serving.ring import Ring
+ring = Ring(8)
+def handler(*_):
+    time.sleep(0.08)  # longer than the wait's 50 ms
+    ring.wake()
+signal.signal(signal.SIGALRM, handler)
+woken = 0
+for _ in range(20):
+    signal.setitimer(signal.ITIMER_REAL, 0.02)  # inside the wait
+    woken += ring.wait(0.05)
+    ring.pop()
+print(woken)
+"""
+
+
+def test_a_wait_that_a_waking_signal_handler_runs_past_its_deadline_returns():
+    done = subprocess.run([sys.executable, "-c", SIGNALLED_WAITS], capture_output=True, text=True, timeout=30)
+    assert done.returncode == 0 and int(done.stdout) == 20, done.stderr

@@ -326,3 +326,18 @@ def test_shares_of_fallback_and_clamping_in_status_stats_and_metrics(tmp_path):
     assert f'fogd_samples_flagged_total{{flag="out_of_domain"}} {float(out_of_domain)!r}' in metrics
     assert f'fogd_samples_flagged_total{{flag="clamped"}} {float(clamped)!r}' in metrics
     assert f'fogd_samples_flagged_share{{flag="clamped"}} {clamped / samples!r}' in metrics
+
+
+def test_every_request_a_signal_handler_makes_wakes_the_loop_at_once(tmp_path, model_path):
+    """SIGTERM, SIGHUP and SIGUSR1 handlers end the loop's wait for frames, so a silent gyro cannot hold a stop,
+    a reload or a counters line back (CPython 3.11 can leave that wait with no deadline after a handler)."""
+    (tmp_path / "ttyNONE").touch()
+    daemon = Daemon(reader=Reader(PortOpener(str(tmp_path / "ttyNONE"), 921600), Lexer(get("kvh-a")), Ring(1024)),
+                    writer=Writer(open_sink(os.devnull, 921600)), formatter=Formatter("csv", get("kvh-a"), 2),
+                    model=modelfile.load(model_path), rate_hz=RATE_HZ, axis=2, temp_stale_s=2.0,
+                    status_interval_s=60.0)  # fmt: skip
+    for request in (daemon.request_counters, daemon.request_reload, daemon.stop):
+        assert not daemon.ring.wait(0.0)
+        request()
+        assert daemon.ring.wait(60.0)  # at once: no frame will ever come
+        assert daemon.ring.pop() == ([], [])

@@ -257,14 +257,17 @@ class Daemon:
     def stop(self) -> None:
         """Ask `run()` to finish (safe from a signal handler)."""
         self._stop.set()
+        self.ring.wake()
 
     def request_reload(self) -> None:
         """Ask for the config and model to be read again (safe from a signal handler)."""
         self._reload_requested.set()
+        self.ring.wake()
 
     def request_counters(self) -> None:
         """Ask for the counters to be logged (safe from a signal handler)."""
         self._counters_requested.set()
+        self.ring.wake()
 
     def run(self) -> None:
         started_s = self.started_s = time.monotonic()

@@ -6,7 +6,10 @@ the lexer made them (no per-frame copy into and out of a numpy record). The prod
 do not fit in the `capacity` left are dropped (the newest) and counted as overruns. The consumer can block in
 `wait` until a batch arrives (a C-level lock in `queue.SimpleQueue`, no Python `Condition` per frame) and pops
 batches up to a frame count, splitting a batch when it must, so order is kept and nothing is lost or doubled.
-The frame count `pushed - popped` has one writer per counter, so no lock is needed for it.
+The frame count `pushed - popped` has one writer per counter, so no lock is needed for it. `wake` makes a
+wait return at once, from a signal handler too: CPython 3.11's `SimpleQueue.get(timeout=...)`, when a signal
+handler runs inside it and the deadline passes meanwhile, goes on waiting with no deadline (a stop with no
+frames arriving would never return); the handler's own `wake` is what the wait then returns with.
 """
 
 from __future__ import annotations
@@ -58,6 +61,11 @@ class Ring:
         self._pushed += count  # counted before it is visible: a pop never makes the length negative
         self._queue.put((t_rx_s, frames))
         return count
+
+    def wake(self) -> None:
+        """Make the consumer's current (or next) `wait` return True at once; safe in a signal handler
+        (`SimpleQueue.put` is reentrant). It queues an empty batch, which `pop` passes over."""
+        self._queue.put((0.0, []))
 
     def wait(self, timeout_s: float) -> bool:
         """Block until a batch can be popped or `timeout_s` passes; True if one can."""
