@@ -1,6 +1,7 @@
-"""The dequantised temperature of a coarse sensor: streaming = batch bit for bit, inside the reading's band,
-the ramp itself on a steady ramp; the resolution seen in calibration runs; fogd-train's default uses it for a
-whole-degree sensor and not for a fine one, and the model file keeps it."""
+"""The dequantised temperature of a coarse sensor, at either pace: streaming = batch bit for bit, inside the
+reading's band, the ramp itself on a steady ramp, the quadratic pace closer on a cycle; the resolution seen in
+calibration runs; fogd-train's default uses it (quadratic) for a whole-degree sensor and not for a fine one,
+and the model file keeps it, its pace, and reads files from before the pace as linear."""
 
 import json
 
@@ -11,7 +12,7 @@ from hypothesis import strategies as st
 
 from fogd.calibration.training import TrainConfig, for_sensor
 from fogd.core import modelfile
-from fogd.core.dequantise import COARSE_RESOLUTION_C, Dequantiser, dequantise_batch, detect_resolution_c
+from fogd.core.dequantise import COARSE_RESOLUTION_C, PACES, Dequantiser, dequantise_batch, detect_resolution_c
 from fogd.core.inputs import InputBank, dequantised, describe_inputs, inputs_batch, parse_inputs
 from fogd.core.runio import Run
 from fogd.errors import ModelFileError, UsageError
@@ -25,51 +26,71 @@ def _staircase(steps: list[int], hold: list[int], resolution_c: float = 1.0) -> 
     return np.repeat(levels, [1 + h for h in hold[: len(levels)]] + [1] * max(0, len(levels) - len(hold)))
 
 
+@pytest.mark.parametrize("pace", PACES)
 @settings(max_examples=100, deadline=None)
 @given(steps=st.lists(st.integers(-1, 1), min_size=1, max_size=400),
        hold=st.lists(st.integers(0, 30), max_size=400), sizes=st.lists(st.integers(0, 60), max_size=40))  # fmt: skip
-def test_streaming_equals_batch_for_any_chunking_and_one_at_a_time(steps, hold, sizes):
+def test_streaming_equals_batch_for_any_chunking_and_one_at_a_time(pace, steps, hold, sizes):
     temps = _staircase(steps, hold)
-    batch = dequantise_batch(temps, 1.0, RATE_HZ)
-    streaming, parts, start = Dequantiser(1.0, RATE_HZ), [], 0
+    batch = dequantise_batch(temps, 1.0, RATE_HZ, pace)
+    streaming, parts, start = Dequantiser(1.0, RATE_HZ, pace), [], 0
     for size in [*sizes, temps.size]:
         parts.append(streaming.update(temps[start : start + size]))
         start += size
         if start >= temps.size:
             break
     assert np.array_equal(np.concatenate(parts), batch)
-    one = Dequantiser(1.0, RATE_HZ)
+    one = Dequantiser(1.0, RATE_HZ, pace)
+    assert [one.update_one(value) for value in temps.tolist()] == batch.tolist()
+    one.reset()
     assert [one.update_one(value) for value in temps.tolist()] == batch.tolist()
 
 
+@pytest.mark.parametrize("pace", PACES)
 @settings(max_examples=100, deadline=None)
 @given(steps=st.lists(st.integers(-2, 2), min_size=1, max_size=400), hold=st.lists(st.integers(0, 30), max_size=400),
        resolution_c=st.sampled_from([0.0625, 0.5, 1.0]))  # fmt: skip
-def test_estimate_never_leaves_the_readings_band(steps, hold, resolution_c):
+def test_estimate_never_leaves_the_readings_band(pace, steps, hold, resolution_c):
     temps = _staircase(steps, hold, resolution_c)
-    estimate = dequantise_batch(temps, resolution_c, RATE_HZ)
+    estimate = dequantise_batch(temps, resolution_c, RATE_HZ, pace)
     assert np.all(np.abs(estimate - temps) <= resolution_c / 2 + 1e-9)
 
 
-def test_a_steady_ramp_is_recovered_from_its_whole_degrees():
-    """From the second crossing on, a quantised steady ramp gives back the ramp (to one sample of travel),
-    where the readings themselves are off by up to half a degree."""
+@pytest.mark.parametrize("pace", PACES)
+def test_a_steady_ramp_is_recovered_from_its_whole_degrees(pace):
+    """From the second crossing on, a quantised steady ramp gives back the ramp (to one sample of travel; the
+    parabola reads the crossings' one-second timing jitter as a little acceleration), where the readings
+    themselves are off by up to half a degree."""
     t_s = np.arange(0, 3600, 1 / RATE_HZ)
     true_c = 10.3 + 0.01 * t_s
     readings = np.round(10.3 + 0.01 * np.floor(t_s))  # a 1 Hz sensor, held
-    estimate = dequantise_batch(readings, 1.0, RATE_HZ)
+    estimate = dequantise_batch(readings, 1.0, RATE_HZ, pace)
     second_crossing = int(np.flatnonzero(np.diff(readings))[1]) + 1
     after = slice(second_crossing, None)
-    assert np.max(np.abs(estimate[after] - true_c[after])) < 0.02
+    assert np.max(np.abs(estimate[after] - true_c[after])) < {"linear": 0.02, "quadratic": 0.05}[pace]
     assert np.max(np.abs(readings[after] - true_c[after])) > 0.45
 
 
-def test_an_overdue_crossing_relaxes_to_the_middle_of_the_band():
+@pytest.mark.parametrize("pace", PACES)
+def test_an_overdue_crossing_relaxes_to_the_middle_of_the_band(pace):
     """A ramp that stops: the estimate does not run on to the band's edge but comes back towards its middle."""
     readings = np.concatenate([np.repeat([20.0, 21.0, 22.0], 600), np.full(36000, 23.0)])
-    estimate = dequantise_batch(readings, 1.0, RATE_HZ)
+    estimate = dequantise_batch(readings, 1.0, RATE_HZ, pace)
     assert estimate[1800 + 550] == pytest.approx(22.5 + 550 / 600, abs=1e-9)  # still on the ramp's slope
     assert 23.0 <= estimate[-1] < 23.01  # an hour later: the middle of the band
+
+
+def test_the_quadratic_pace_follows_a_cycle_closer():
+    """A slow sine (3 C, 1 h period) read in whole degrees at 1 Hz: the parabola through the last three
+    crossings slows down into each turn, where the pace between the last two runs on past it."""
+    t_s = np.arange(0, 4 * 3600, 1 / RATE_HZ)
+    true_c = 20.3 + 3.0 * np.sin(2 * np.pi * t_s / 3600)
+    readings = np.round(20.3 + 3.0 * np.sin(2 * np.pi * np.floor(t_s) / 3600))
+    after = t_s >= 600
+    rms = {pace: np.sqrt(np.mean((dequantise_batch(readings, 1.0, RATE_HZ, pace) - true_c)[after] ** 2))
+           for pace in PACES}  # fmt: skip
+    assert rms["quadratic"] < 0.85 * rms["linear"], rms
+    assert rms["linear"] < np.sqrt(np.mean((readings - true_c)[after] ** 2)), rms
 
 
 def test_detect_resolution():
@@ -90,7 +111,7 @@ def test_the_default_dequantises_a_whole_degree_sensor_only():
     ramp = 10.0 + 0.005 * np.arange(36000) / RATE_HZ
     config = TrainConfig()
     coarse = for_sensor([_run(np.round(ramp))], config)
-    assert all(spec.dequantise_c == 1.0 for spec in coarse.inputs)
+    assert all(spec.dequantise_c == 1.0 and spec.dequantise_pace == "quadratic" for spec in coarse.inputs)
     assert describe_inputs(coarse.inputs).endswith(" (dequantised 1 C)")
     assert for_sensor([_run(np.round(ramp * 16) / 16)], config).inputs == config.inputs
     assert for_sensor([_run(np.round(ramp))], TrainConfig(sensor_resolution_c=0.0)).inputs == config.inputs
@@ -108,7 +129,8 @@ def test_the_default_dequantises_a_whole_degree_sensor_only():
 def test_dequantised_input_bank_streaming_equals_batch(steps, hold, chunk):
     """The daemon's chunks (and one sample at a time) give replay's floats with a dequantised bank, which
     mixes inputs of the readings and of the estimate."""
-    specs = dequantised(parse_inputs("temp,lags@30..3000/5,rate@50"), 1.0) + parse_inputs("lag@100")
+    specs = (dequantised(parse_inputs("temp,lags@30..3000/5,rate@50"), 1.0) + parse_inputs("lag@100")
+             + dequantised(parse_inputs("lag@60"), 1.0, "linear"))  # fmt: skip
     temps = _staircase(steps, hold)
     batch = inputs_batch(temps, specs, RATE_HZ)
     bank = InputBank(specs, RATE_HZ)
@@ -116,7 +138,9 @@ def test_dequantised_input_bank_streaming_equals_batch(steps, hold, chunk):
     assert np.array_equal(streamed, batch)
     bank.reset()
     assert np.array_equal(np.array([bank.update_one(value) for value in temps.tolist()]), batch)
-    np.testing.assert_array_equal(batch[:, 0], dequantise_batch(temps, 1.0, RATE_HZ))
+    np.testing.assert_array_equal(batch[:, 0], dequantise_batch(temps, 1.0, RATE_HZ, "quadratic"))
+    linear = InputBank(parse_inputs("lag@60"), RATE_HZ).update(dequantise_batch(temps, 1.0, RATE_HZ, "linear"))
+    np.testing.assert_array_equal(batch[:, -1], linear[:, 0])
 
 
 def _linear_doc(specs, version):
@@ -140,6 +164,7 @@ def test_model_file_keeps_the_dequantised_inputs_as_version_4(tmp_path):
         domain_min=np.full(6, -100.0), domain_max=np.full(6, 100.0), params={"coef": [0.1] * 6, "intercept": 0.0},
         reference_dph=0.0, training={}, metrics={}, created_utc="2026-01-01T00:00:00+00:00")  # fmt: skip
     assert document["version"] == 4
+    assert all(item["dequantise_pace"] == "quadratic" for item in document["inputs"])
     path = tmp_path / "m.json"
     modelfile.save(path, document)
     assert modelfile.load(path).inputs == specs
@@ -159,6 +184,22 @@ def _document_args(document):
                 params=document["params"], reference_dph=0.0, training={}, metrics={}, created_utc="x")  # fmt: skip
 
 
+def test_a_version_4_file_from_before_the_pace_is_served_at_the_linear_pace(tmp_path):
+    """Files written before `dequantise_pace` existed were trained on the linear pace, and are served with it."""
+    doc = _linear_doc(parse_inputs("temp,lag@300"), 4)
+    for item in doc["inputs"]:
+        item["dequantise_c"] = 1.0
+    path = tmp_path / "m.json"
+    path.write_text(json.dumps(doc))
+    model = modelfile.load(path)
+    assert model.inputs == dequantised(parse_inputs("temp,lag@300"), 1.0, "linear")
+    assert all(spec.dequantise_pace is None for spec in model.inputs)
+    temps = _staircase([1, 1, 1, 1, 0, 0, -1], [300, 200, 150, 300, 400, 0, 100])
+    served = InputBank(model.inputs, RATE_HZ).update(temps)
+    np.testing.assert_array_equal(served[:, 0], dequantise_batch(temps, 1.0, RATE_HZ, "linear"))
+    assert not np.array_equal(served[:, 0], dequantise_batch(temps, 1.0, RATE_HZ, "quadratic"))
+
+
 @pytest.mark.parametrize(
     "version, value, message",
     [(2, 1.0, "unknown key"), (4, 0.0, "positive"), (4, 50.0, "above 10 C"), (4, "1", "finite number")],
@@ -169,6 +210,16 @@ def test_model_file_rejects_bad_or_early_dequantised_inputs(tmp_path, version, v
     path = tmp_path / "m.json"
     path.write_text(json.dumps(doc))
     with pytest.raises(ModelFileError, match=message):
+        modelfile.load(path)
+
+
+@pytest.mark.parametrize("pace", ["linear", "cubic", 2])
+def test_model_file_rejects_a_bad_or_unneeded_pace(tmp_path, pace):
+    doc = _linear_doc(parse_inputs("temp,lag@300"), 4)
+    doc["inputs"][1].update(dequantise_c=1.0, dequantise_pace=pace)  # "linear" is written as no key at all
+    path = tmp_path / "m.json"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(ModelFileError, match="dequantise_pace"):
         modelfile.load(path)
 
 

@@ -11,11 +11,12 @@ means after 600 s, over the run's noise floor) of (b) - (a): the drift the estim
 estimate's own RMS error against the true temperature (what the sensor element itself reads, noise-free).
 
     python tools/dequantise_error.py                      # seeds 1 and 2, both coils, every estimator
-    python tools/dequantise_error.py --estimators linear --seeds 1 --thermal lumped
+    python tools/dequantise_error.py --estimators linear,quadratic --seeds 1 --thermal lumped
 
-Estimators: `readings` (the staircase itself); fogd.core.dequantise's estimate (`linear`: along the pace
-between the last two crossings); `kalman-edge` and `kalman-clamp`, an experimental (temperature, pace) Kalman
-filter on the crossings (`TrackingDequantiser`, here only: it did worse).
+Estimators: `readings` (the staircase itself); fogd.core.dequantise at its `linear` pace (fogd-train's before
+`dequantise_pace`) and its `quadratic` pace (the default now); `kalman-edge` and `kalman-clamp`, an
+experimental (temperature, pace) Kalman filter on the crossings (`TrackingDequantiser`, here only: it did worse
+than either pace).
 """
 
 from __future__ import annotations
@@ -112,7 +113,8 @@ class TrackingDequantiser:
 Estimator = Callable[[np.ndarray, float, float], np.ndarray]  # (held readings, resolution C, rate Hz) -> estimate
 ESTIMATORS: dict[str, Estimator] = {
     "readings": lambda temp_c, resolution_c, rate_hz: np.asarray(temp_c, dtype=np.float64),
-    "linear": dequantise_batch,
+    "linear": lambda temp_c, resolution_c, rate_hz: dequantise_batch(temp_c, resolution_c, rate_hz, "linear"),
+    "quadratic": lambda temp_c, resolution_c, rate_hz: dequantise_batch(temp_c, resolution_c, rate_hz, "quadratic"),
     "kalman-edge": lambda temp_c, resolution_c, rate_hz: TrackingDequantiser(
         resolution_c, rate_hz, accel_psd=1e-7, edge_var_c2=1e-2).update(temp_c),
     "kalman-clamp": lambda temp_c, resolution_c, rate_hz: TrackingDequantiser(

@@ -10,7 +10,9 @@ Kinds: `temp_c` (the held temperature), `temp_rate_cps` (eq. 16 with its window 
 may be used at once) and `temp_lag_c` (a first-order lag of the temperature with time constant `tau_s`,
 fogd.core.lag). `parse_inputs` reads the `fogd-train --inputs` syntax, e.g. `temp,rate@50,rate@300,lag@600`.
 Any of them may be computed from the dequantised temperature of a coarse sensor instead of its readings
-(`dequantise_c`, the sensor's resolution; fogd.core.dequantise), one dequantiser shared by all the inputs.
+(`dequantise_c`, the sensor's resolution; fogd.core.dequantise), one dequantiser shared by all the inputs;
+`dequantise_pace` names how that estimate runs between crossings (None: "linear", what model files written
+before it existed were trained with).
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fogd.core.dequantise import Dequantiser
+from fogd.core.dequantise import DEFAULT_PACE, PACES, Dequantiser
 from fogd.core.estimator import EstimatorSettings, TempRateEstimator, temp_rate_batch
 from fogd.core.lag import MAX_TAU_S, LagFilter
 
@@ -47,6 +49,7 @@ class InputSpec:
     estimator: EstimatorSettings | None = None
     tau_s: float | None = None
     dequantise_c: float | None = None  # the sensor's resolution when computed from fogd.dequantise's estimate
+    dequantise_pace: str | None = None  # fogd.dequantise's pace (PACES) when not "linear"
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -59,6 +62,14 @@ class InputSpec:
             raise ValueError(f"lag time constant must be in (0, {MAX_TAU_S:g}] s, got {self.tau_s}")
         if self.dequantise_c is not None and not 0 < self.dequantise_c <= MAX_RESOLUTION_C:
             raise ValueError(f"sensor resolution must be in (0, {MAX_RESOLUTION_C:g}] C, got {self.dequantise_c}")
+        if self.dequantise_pace is not None and (self.dequantise_c is None or self.dequantise_pace not in PACES[1:]):
+            raise ValueError(f"dequantiser pace {self.dequantise_pace!r}: one of {', '.join(PACES[1:])}, "
+                             "for a dequantised input only")
+
+    @property
+    def source(self) -> tuple[float, str] | None:
+        """What the input is computed from: None (the readings) or the dequantiser's (resolution, pace)."""
+        return None if self.dequantise_c is None else (self.dequantise_c, self.dequantise_pace or PACES[0])
 
     @property
     def label(self) -> str:
@@ -80,6 +91,8 @@ class InputSpec:
 
     def to_dict(self) -> dict:
         extra = {} if self.dequantise_c is None else {"dequantise_c": float(self.dequantise_c)}
+        if self.dequantise_pace is not None:
+            extra["dequantise_pace"] = self.dequantise_pace
         if self.estimator is not None:
             return {"kind": self.kind, **self.estimator.to_dict(), **extra}
         if self.tau_s is not None:
@@ -158,10 +171,12 @@ def describe_inputs(specs: tuple[InputSpec, ...]) -> str:
     return _describe_plain(specs) + suffix
 
 
-def dequantised(specs: tuple[InputSpec, ...], resolution_c: float | None) -> tuple[InputSpec, ...]:
+def dequantised(specs: tuple[InputSpec, ...], resolution_c: float | None,
+                pace: str = DEFAULT_PACE) -> tuple[InputSpec, ...]:  # fmt: skip
     """The same inputs computed from the dequantised temperature of a sensor of `resolution_c` (None: from
-    the readings)."""
-    return tuple(dataclasses.replace(spec, dequantise_c=resolution_c) for spec in specs)
+    the readings), the estimate running at `pace` between crossings."""
+    stored = None if resolution_c is None or pace == PACES[0] else pace
+    return tuple(dataclasses.replace(spec, dequantise_c=resolution_c, dequantise_pace=stored) for spec in specs)
 
 
 def _describe_plain(specs: tuple[InputSpec, ...]) -> str:
@@ -249,9 +264,9 @@ def warmup_samples(specs: tuple[InputSpec, ...], rate_hz: float) -> int:
 def inputs_batch(temp_c: np.ndarray, specs: tuple[InputSpec, ...], rate_hz: float) -> np.ndarray:
     """All inputs for a whole run of finite temperatures: an (n, len(specs)) array."""
     temp_c = np.asarray(temp_c, dtype=np.float64)
-    sources = {resolution_c: temp_c if resolution_c is None else Dequantiser(resolution_c, rate_hz).update(temp_c)
-               for resolution_c in _resolutions(specs)}  # fmt: skip
-    columns = [_column_batch(sources[spec.dequantise_c], spec, rate_hz) for spec in specs]
+    sources = {key: temp_c if key is None else Dequantiser(key[0], rate_hz, key[1]).update(temp_c)
+               for key in _sources(specs)}  # fmt: skip
+    columns = [_column_batch(sources[spec.source], spec, rate_hz) for spec in specs]
     return np.column_stack(columns) if columns else np.empty((temp_c.size, 0))
 
 
@@ -263,9 +278,9 @@ def _column_batch(temp_c: np.ndarray, spec: InputSpec, rate_hz: float) -> np.nda
     return temp_c
 
 
-def _resolutions(specs: tuple[InputSpec, ...]) -> list[float | None]:
-    """The temperature sources the inputs need: None (the readings) and each dequantised resolution."""
-    return list(dict.fromkeys(spec.dequantise_c for spec in specs))
+def _sources(specs: tuple[InputSpec, ...]) -> list[tuple[float, str] | None]:
+    """The temperature sources the inputs need: None (the readings) and each dequantiser's (resolution, pace)."""
+    return list(dict.fromkeys(spec.source for spec in specs))
 
 
 def _streaming(spec: InputSpec, rate_hz: float) -> TempRateEstimator | LagFilter | None:
@@ -283,8 +298,9 @@ class InputBank:
         self.specs = specs
         self.rate_hz = float(rate_hz)
         self._estimators = [_streaming(spec, rate_hz) for spec in specs]
-        self._dequantisers = {resolution_c: Dequantiser(resolution_c, rate_hz)
-                              for resolution_c in _resolutions(specs) if resolution_c is not None}  # fmt: skip
+        self._sources = [spec.source for spec in specs]
+        self._dequantisers = {key: Dequantiser(key[0], rate_hz, key[1])
+                              for key in _sources(specs) if key is not None}  # fmt: skip
         self.warmup = warmup_samples(specs, rate_hz)
         self.count = 0
 
@@ -304,8 +320,8 @@ class InputBank:
         temp_c = np.atleast_1d(np.asarray(temp_c, dtype=np.float64))
         out = np.empty((temp_c.size, len(self.specs)))
         sources = {None: temp_c} | {key: dq.update(temp_c) for key, dq in self._dequantisers.items()}
-        for column, (spec, estimator) in enumerate(zip(self.specs, self._estimators)):
-            source = sources[spec.dequantise_c]
+        for column, (key, estimator) in enumerate(zip(self._sources, self._estimators)):
+            source = sources[key]
             out[:, column] = source if estimator is None else estimator.update(source)
         self.count += temp_c.size
         return out
@@ -316,5 +332,5 @@ class InputBank:
         if not self._dequantisers:
             return tuple(temp_c if estimator is None else estimator.update_one(temp_c) for estimator in self._estimators)
         sources = {None: temp_c} | {key: dq.update_one(temp_c) for key, dq in self._dequantisers.items()}
-        return tuple(sources[spec.dequantise_c] if estimator is None else estimator.update_one(sources[spec.dequantise_c])
-                     for spec, estimator in zip(self.specs, self._estimators))  # fmt: skip
+        return tuple(sources[key] if estimator is None else estimator.update_one(sources[key])
+                     for key, estimator in zip(self._sources, self._estimators))  # fmt: skip

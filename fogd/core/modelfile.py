@@ -23,7 +23,10 @@ file is the one channel `rate_dph`).
 
 Version 4 is a single-channel model (alone, or as a channel's model in a version-3 file) whose inputs may
 carry `dequantise_c`: computed from fogd.core.dequantise's estimate of a coarse sensor's temperature. Only a
-model with such an input is written as version 4, so an older fogd refuses it by its version.
+model with such an input is written as version 4, so an older fogd refuses it by its version. Such an input
+may also carry `dequantise_pace` ("quadratic", fogd.core.dequantise.PACES); without it the estimate runs at
+the linear pace, as every version-4 file written before the key existed was trained with. A fogd from before
+the key refuses a file with it (an unknown key of an input) rather than serving the wrong estimate.
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ from fogd import __version__
 from fogd.core.atomic import read_regular, replaced
 from fogd.core.channels import ChannelModels
 from fogd.core.columns import CHANNELS, SINGLE_CHANNEL
+from fogd.core.dequantise import PACES
 from fogd.core.domain import DomainGuard
 from fogd.core.estimator import EstimatorSettings
 from fogd.core.frozen import FrozenModel, build_evaluator
@@ -444,12 +448,17 @@ class _Checker:
             where = f"inputs[{i}]"
             if not isinstance(item, dict) or item.get("kind") not in KINDS:
                 self.fail(where, f"must be an object whose kind is one of {', '.join(KINDS)}")
-            resolution_c = None
+            resolution_c = pace = None
             if dequantised and "dequantise_c" in item:
                 item = dict(item)
                 resolution_c = self.number(item.pop("dequantise_c"), f"{where}.dequantise_c", positive=True)
                 if resolution_c > MAX_RESOLUTION_C:
                     self.fail(f"{where}.dequantise_c", f"is above {MAX_RESOLUTION_C:g} C")
+                if "dequantise_pace" in item:  # absent: "linear", as every file before it was written
+                    pace = item.pop("dequantise_pace")
+                    if pace not in PACES[1:]:
+                        self.fail(f"{where}.dequantise_pace", f"must be one of {', '.join(PACES[1:])}")
+            source = {"dequantise_c": resolution_c, "dequantise_pace": pace}
             if item["kind"] == TEMP_RATE:
                 self.mapping(item, where, {"kind", "window_s", "average_s", "step_s"})
                 settings = EstimatorSettings(
@@ -459,16 +468,16 @@ class _Checker:
                     self.fail(where, "needs 0 < 2 * average_s <= window_s <= 86400")
                 if not 0 <= settings.step_s <= settings.window_s:
                     self.fail(where, "needs 0 <= step_s <= window_s")
-                specs.append(InputSpec(TEMP_RATE, settings, dequantise_c=resolution_c))
+                specs.append(InputSpec(TEMP_RATE, settings, **source))
             elif item["kind"] == TEMP_LAG:
                 self.mapping(item, where, {"kind", "tau_s"})
                 tau_s = self.number(item["tau_s"], f"{where}.tau_s")
                 if not 0 < tau_s <= MAX_TAU_S:
                     self.fail(where, f"needs 0 < tau_s <= {MAX_TAU_S:g}")
-                specs.append(InputSpec(TEMP_LAG, tau_s=tau_s, dequantise_c=resolution_c))
+                specs.append(InputSpec(TEMP_LAG, tau_s=tau_s, **source))
             else:
                 self.mapping(item, where, {"kind"})
-                specs.append(InputSpec(item["kind"], dequantise_c=resolution_c))
+                specs.append(InputSpec(item["kind"], **source))
         if len(set(specs)) != len(specs):
             self.fail("inputs", "lists the same input twice")
         return tuple(specs)
