@@ -530,6 +530,28 @@ def test_lag_bank_model_with_polynomial_trend_through_fogd_equals_replay(tmp_pat
     assert ((flags & 2) != 0).any() and ((flags & 2) == 0).any()  # clamped and unclamped samples both served
 
 
+def test_lag_bank_model_with_a_play_input_through_fogd_equals_replay(tmp_path):
+    """fogd-train's default for a fine sensor (a bank of lags and the play operator, model file version 5): the
+    daemon, frame by frame, equals replay."""
+    from fogd.core.inputs import parse_inputs
+
+    inputs = parse_inputs("lags@0.3,1,10,play@0.2")
+    powers = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1], [2, 0, 0, 0], [3, 0, 0, 0]]
+    model = tmp_path / "play.json"
+    doc = modelfile.document(
+        name="e2e-play", method="pso-svr", inputs=inputs,
+        x_mean=np.array([22.0, 22.0, 22.0, 0.0]), x_scale=np.array([2.0, 2.0, 2.0, 0.5]), y_mean=0.1, y_scale=0.5,
+        domain_min=np.array([-40.0, -40.0, -40.0, -1.0]), domain_max=np.array([80.0, 80.0, 80.0, 1.0]),
+        params={"support_vectors": [[0.0, 0.1, 0.2, 1.0], [-1.0, -0.5, 0.0, -1.0]], "dual_coef": [0.7, -0.4],
+                "gamma": 0.3, "trend_coef": [0.2, -0.3, 0.1, 0.4, 0.02, -0.01], "trend_powers": powers,
+                "intercept": 0.01},
+        reference_dph=0.0, training={}, metrics={}, created_utc="2024-01-01T00:00:00Z",
+    )  # fmt: skip
+    modelfile.save(model, doc)
+    assert json.loads(model.read_text())["version"] == 5
+    kvh_run_through_fogd_equals_replay(tmp_path, model, seed=7)
+
+
 def test_dequantised_lag_bank_model_through_fogd_equals_replay(tmp_path):
     """fogd-train's default for a KVH's whole degrees (the lags of the dequantised temperature, model file
     version 4): the daemon, frame by frame, equals replay."""

@@ -379,7 +379,7 @@ def delete_at(doc: dict, dotted: str) -> None:
 BAD_FIELDS = [
     ("linear", "format", "fogd-modle", ["format", "fogd-modle"]),
     ("linear", "format", None, ["format"]),
-    ("linear", "version", 5, ["version", "5"]),
+    ("linear", "version", 6, ["version", "6"]),
     ("linear", "version", 0, ["version"]),
     ("linear", "version", "1", ["version", "integer"]),
     ("linear", "version", True, ["version", "integer"]),

@@ -46,7 +46,7 @@ from fogd.core.inputs import InputBank, InputSpec
 
 class ChannelModels(Mapping[str, FrozenModel]):
     """A model file's models by channel, in file order: `rate_x_dph` ... `accel_z_g` for a multi-channel
-    (version 3) file, or the one channel `rate_dph` for a single-channel (version 1, 2 or 4) file."""
+    (version 3) file, or the one channel `rate_dph` for a single-channel (version 1, 2, 4 or 5) file."""
 
     def __init__(self, models: Mapping[str, FrozenModel], *, name: str, version: int) -> None:
         if not models:

@@ -7,8 +7,10 @@ any chunk size) and `inputs_batch` the batch form; both give the same floats bit
 works in exact integer sums, the lag filter runs one recurrence in both forms).
 
 Kinds: `temp_c` (the held temperature), `temp_rate_cps` (eq. 16 with its window settings; several windows
-may be used at once) and `temp_lag_c` (a first-order lag of the temperature with time constant `tau_s`,
-fogd.core.lag). `parse_inputs` reads the `fogd-train --inputs` syntax, e.g. `temp,rate@50,rate@300,lag@600`.
+may be used at once), `temp_lag_c` (a first-order lag of the temperature with time constant `tau_s`,
+fogd.core.lag) and `temp_play` (the play operator of the temperature with width `width_c`, fogd.core.play:
++1 after heating, -1 after cooling). `parse_inputs` reads the `fogd-train --inputs` syntax, e.g.
+`temp,rate@50,rate@300,lag@600,play@2`.
 Any of them may be computed from the dequantised temperature of a coarse sensor instead of its readings
 (`dequantise_c`, the sensor's resolution; fogd.core.dequantise), one dequantiser shared by all the inputs;
 `dequantise_pace` names how that estimate runs between crossings (None: "linear", what model files written
@@ -25,16 +27,19 @@ import numpy as np
 from fogd.core.dequantise import DEFAULT_PACE, PACES, Dequantiser
 from fogd.core.estimator import EstimatorSettings, TempRateEstimator, temp_rate_batch
 from fogd.core.lag import MAX_TAU_S, LagFilter
+from fogd.core.play import MAX_WIDTH_C, PlayFilter
 
 TEMP = "temp_c"
 TEMP_RATE = "temp_rate_cps"
 TEMP_LAG = "temp_lag_c"
-KINDS = (TEMP, TEMP_RATE, TEMP_LAG)
+TEMP_PLAY = "temp_play"
+KINDS = (TEMP, TEMP_RATE, TEMP_LAG, TEMP_PLAY)
 INPUTS_SYNTAX = (
     "comma-separated inputs: 'temp' (temperature, C), 'rate@W' (eq. 16 temperature rate over a W s window, "
     "with --average-s and --step-s), 'lag@TAU' (temperature through a first-order lag of time constant TAU s, a "
     "stand-in for the coil temperature), 'lags@TAU,TAU,...' or 'lags@FIRST..LAST/COUNT' (a bank of such lags, "
-    "the range log-spaced); e.g. temp,rate@50,rate@300,lag@600 or lags@30..3000/5"
+    "the range log-spaced), 'play@WIDTH' (the temperature's play operator of WIDTH C: +1 after heating, -1 after "
+    "cooling, for a gyro's hysteresis); e.g. temp,rate@50,rate@300,lag@600 or lags@30..3000/5,play@2"
 )
 MAX_INPUTS = 16
 MAX_RESOLUTION_C = 10.0
@@ -42,14 +47,16 @@ MAX_RESOLUTION_C = 10.0
 
 @dataclass(frozen=True)
 class InputSpec:
-    """One model input: `temp_c`, `temp_rate_cps` with its eq. 16 estimator settings, or `temp_lag_c` with
-    its time constant `tau_s`; of the readings, or of their dequantised estimate (`dequantise_c`)."""
+    """One model input: `temp_c`, `temp_rate_cps` with its eq. 16 estimator settings, `temp_lag_c` with
+    its time constant `tau_s`, or `temp_play` with its width `width_c`; of the readings, or of their
+    dequantised estimate (`dequantise_c`)."""
 
     kind: str
     estimator: EstimatorSettings | None = None
     tau_s: float | None = None
     dequantise_c: float | None = None  # the sensor's resolution when computed from fogd.dequantise's estimate
     dequantise_pace: str | None = None  # fogd.dequantise's pace (PACES) when not "linear"
+    width_c: float | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -58,6 +65,10 @@ class InputSpec:
             raise ValueError(f"input {self.kind!r}: estimator settings go with {TEMP_RATE} only")
         if (self.kind == TEMP_LAG) != (self.tau_s is not None):
             raise ValueError(f"input {self.kind!r}: a time constant tau_s goes with {TEMP_LAG} only")
+        if (self.kind == TEMP_PLAY) != (self.width_c is not None):
+            raise ValueError(f"input {self.kind!r}: a width width_c goes with {TEMP_PLAY} only")
+        if self.width_c is not None and not 0 < self.width_c <= MAX_WIDTH_C:
+            raise ValueError(f"play width must be in (0, {MAX_WIDTH_C:g}] C, got {self.width_c}")
         if self.tau_s is not None and not 0 < self.tau_s <= MAX_TAU_S:
             raise ValueError(f"lag time constant must be in (0, {MAX_TAU_S:g}] s, got {self.tau_s}")
         if self.dequantise_c is not None and not 0 < self.dequantise_c <= MAX_RESOLUTION_C:
@@ -78,6 +89,8 @@ class InputSpec:
             return f"{self.kind}@{self.estimator.window_s:g}s"
         if self.tau_s is not None:
             return f"{self.kind}@{self.tau_s:g}s"
+        if self.width_c is not None:
+            return f"{self.kind}@{self.width_c:g}C"
         return self.kind
 
     @property
@@ -87,6 +100,8 @@ class InputSpec:
             return f"rate@{self.estimator.window_s:g}"
         if self.tau_s is not None:
             return f"lag@{self.tau_s:g}"
+        if self.width_c is not None:
+            return f"play@{self.width_c:g}"
         return "temp"
 
     def to_dict(self) -> dict:
@@ -97,6 +112,8 @@ class InputSpec:
             return {"kind": self.kind, **self.estimator.to_dict(), **extra}
         if self.tau_s is not None:
             return {"kind": self.kind, "tau_s": float(self.tau_s), **extra}
+        if self.width_c is not None:
+            return {"kind": self.kind, "width_c": float(self.width_c), **extra}
         return {"kind": self.kind, **extra}
 
 
@@ -140,7 +157,10 @@ def _single(name: str, value: str, average_s: float, step_s: float) -> InputSpec
         return spec
     if name == "lag" and value:
         return InputSpec(TEMP_LAG, tau_s=float(value))
-    raise ValueError("expected temp, rate@SECONDS, lag@SECONDS or lags@SECONDS,SECONDS,... / lags@FIRST..LAST/COUNT")
+    if name == "play" and value:
+        return InputSpec(TEMP_PLAY, width_c=float(value))
+    raise ValueError("expected temp, rate@SECONDS, lag@SECONDS, lags@SECONDS,SECONDS,... / lags@FIRST..LAST/COUNT "
+                     "or play@WIDTH_C")
 
 
 def _bank_taus(value: str) -> list[float]:
@@ -275,6 +295,8 @@ def _column_batch(temp_c: np.ndarray, spec: InputSpec, rate_hz: float) -> np.nda
         return temp_rate_batch(temp_c, spec.estimator, rate_hz)
     if spec.tau_s is not None:
         return LagFilter(spec.tau_s, rate_hz).update(temp_c)
+    if spec.width_c is not None:
+        return PlayFilter(spec.width_c).update(temp_c)
     return temp_c
 
 
@@ -283,11 +305,13 @@ def _sources(specs: tuple[InputSpec, ...]) -> list[tuple[float, str] | None]:
     return list(dict.fromkeys(spec.source for spec in specs))
 
 
-def _streaming(spec: InputSpec, rate_hz: float) -> TempRateEstimator | LagFilter | None:
+def _streaming(spec: InputSpec, rate_hz: float) -> TempRateEstimator | LagFilter | PlayFilter | None:
     if spec.estimator is not None:
         return TempRateEstimator(spec.estimator, rate_hz)
     if spec.tau_s is not None:
         return LagFilter(spec.tau_s, rate_hz)
+    if spec.width_c is not None:
+        return PlayFilter(spec.width_c)
     return None
 
 

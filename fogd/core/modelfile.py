@@ -17,8 +17,8 @@ maps each channel it covers to that channel's model, a whole version-2 (or 4) do
 only `format`, `version`, `name`, `created_utc` and `fogd_version`. Only multi-channel files are version 3: a
 single-axis model is still written as version 2, byte for byte as before, so an older fogd keeps loading what
 a single-axis training writes, and refuses a multi-channel file by its version rather than misreading it.
-`load` reads single-channel files (versions 1, 2 and 4) as it always has and refuses a version-3 file in one line;
-`load_channels` reads any of them as a `ChannelModels` (channel name -> FrozenModel; a version-1, -2 or -4
+`load` reads single-channel files (versions 1, 2, 4 and 5) as it always has and refuses a version-3 file in one line;
+`load_channels` reads any of them as a `ChannelModels` (channel name -> FrozenModel; a version-1, -2, -4 or -5
 file is the one channel `rate_dph`).
 
 Version 4 is a single-channel model (alone, or as a channel's model in a version-3 file) whose inputs may
@@ -27,6 +27,10 @@ model with such an input is written as version 4, so an older fogd refuses it by
 may also carry `dequantise_pace` ("quadratic", fogd.core.dequantise.PACES); without it the estimate runs at
 the linear pace, as every version-4 file written before the key existed was trained with. A fogd from before
 the key refuses a file with it (an unknown key of an input) rather than serving the wrong estimate.
+
+Version 5 is a single-channel model (alone or as a channel's model) with a `temp_play` input (fogd.core.play,
+with `width_c`: the temperature's play operator, for a gyro's heating/cooling hysteresis); its inputs may be
+dequantised as in version 4. Only a model with such an input is written as version 5.
 """
 
 from __future__ import annotations
@@ -46,14 +50,23 @@ from fogd.core.dequantise import PACES
 from fogd.core.domain import DomainGuard
 from fogd.core.estimator import EstimatorSettings
 from fogd.core.frozen import FrozenModel, build_evaluator
-from fogd.core.inputs import KINDS, MAX_RESOLUTION_C, TEMP_LAG, TEMP_RATE, InputSpec
+from fogd.core.inputs import (
+    KINDS,
+    MAX_RESOLUTION_C,
+    TEMP_LAG,
+    TEMP_PLAY,
+    TEMP_RATE,
+    InputSpec,
+)
 from fogd.core.lag import MAX_TAU_S
+from fogd.core.play import MAX_WIDTH_C
 from fogd.errors import ModelFileError, NoModelFileError, describe_os_error
 
 MODEL_FORMAT = "fogd-model"
 MODEL_VERSION = 2  # a single-channel file whose inputs are all computed from the readings
 DEQUANTISED_VERSION = 4  # a single-channel file (or a channel's model) with a dequantised input
-READABLE_VERSIONS = (1, 2, DEQUANTISED_VERSION)  # of a single-channel file (and of each channel's model)
+PLAY_VERSION = 5  # a single-channel file (or a channel's model) with a play input, dequantised or not
+READABLE_VERSIONS = (1, 2, DEQUANTISED_VERSION, PLAY_VERSION)  # of a single-channel file (and of each channel's model)
 CHANNELS_VERSION = 3  # a multi-channel file
 CHANNELS_TOP_KEYS = {"format", "version", "name", "channels", "created_utc", "fogd_version"}
 MAX_MODEL_BYTES = 32 * 1024 * 1024
@@ -120,7 +133,7 @@ def document(
     optional = {} if domain_guard is None else {"domain_guard": domain_guard}
     return {
         "format": MODEL_FORMAT,
-        "version": DEQUANTISED_VERSION if any(spec.dequantise_c is not None for spec in inputs) else MODEL_VERSION,
+        "version": _version(inputs),
         "name": name,
         "method": method,
         "inputs": [spec.to_dict() for spec in inputs],
@@ -151,7 +164,7 @@ def channels_document(*, name: str, documents: dict[str, dict[str, Any]], create
 
 
 def load(path: str | Path) -> FrozenModel:
-    """Read and validate a single-channel model file (version 1, 2 or 4); raises ModelFileError with one line
+    """Read and validate a single-channel model file (version 1, 2, 4 or 5); raises ModelFileError with one line
     saying what is wrong, or that the file is a multi-channel one (`load_channels` reads those)."""
     source = str(path)
     return from_document(_parse(path), source=source)
@@ -296,6 +309,13 @@ def check_rate(model: FrozenModel, rate_hz: float, source: str = "model") -> Non
         )
 
 
+def _version(inputs: tuple[InputSpec, ...]) -> int:
+    """The oldest single-channel version that holds these inputs, so an older fogd refuses what it cannot serve."""
+    if any(spec.kind == TEMP_PLAY for spec in inputs):
+        return PLAY_VERSION
+    return DEQUANTISED_VERSION if any(spec.dequantise_c is not None for spec in inputs) else MODEL_VERSION
+
+
 def from_channels_document(doc: Any, *, source: str = "model") -> ChannelModels:
     """Validate a parsed multi-channel (version 3) document and build each channel's frozen model."""
     check = _Checker(source)
@@ -327,7 +347,7 @@ def from_document(doc: Any, *, source: str = "model") -> FrozenModel:
     if _is_multi_channel(doc) and isinstance(doc.get("channels"), dict):
         channels = ", ".join(printable(str(name))[:40] for name in list(doc["channels"])[:len(CHANNELS)])
         check.fail("version", f"is {CHANNELS_VERSION}: a model per channel ({channels}); this reads a single-channel "
-                              "model file (version 1, 2 or 4)")
+                              "model file (version 1, 2, 4 or 5)")
     check.mapping(doc, "", TOP_KEYS, optional=OPTIONAL_TOP_KEYS)
     _control_characters(doc, "", check)
     if doc["format"] != MODEL_FORMAT:
@@ -339,7 +359,8 @@ def from_document(doc: Any, *, source: str = "model") -> FrozenModel:
     method = check.string(doc["method"], "method")
     if method not in METHODS:
         check.fail("method", f"is {method[:40]!r}; known methods: {', '.join(METHODS)}")
-    inputs = check.inputs(doc["inputs"], dequantised=version == DEQUANTISED_VERSION)
+    inputs = check.inputs(doc["inputs"], dequantised=version in (DEQUANTISED_VERSION, PLAY_VERSION),
+                          play=version == PLAY_VERSION)
     d = len(inputs)
     check.mapping(doc["input_scaling"], "input_scaling", {"mean", "scale"})
     x_mean = check.vector(doc["input_scaling"]["mean"], "input_scaling.mean", d)
@@ -440,14 +461,15 @@ class _Checker:
         rows = [self.vector(row, f"{where}[{i}]", columns) for i, row in enumerate(value)]
         return np.array(rows).reshape(len(rows), columns)
 
-    def inputs(self, value: Any, *, dequantised: bool = False) -> tuple[InputSpec, ...]:
+    def inputs(self, value: Any, *, dequantised: bool = False, play: bool = False) -> tuple[InputSpec, ...]:
         if not isinstance(value, list) or not 1 <= len(value) <= 16:
             self.fail("inputs", "must be a list of 1 to 16 inputs")
         specs = []
         for i, item in enumerate(value):
             where = f"inputs[{i}]"
-            if not isinstance(item, dict) or item.get("kind") not in KINDS:
-                self.fail(where, f"must be an object whose kind is one of {', '.join(KINDS)}")
+            kinds = KINDS if play else tuple(kind for kind in KINDS if kind != TEMP_PLAY)
+            if not isinstance(item, dict) or item.get("kind") not in kinds:
+                self.fail(where, f"must be an object whose kind is one of {', '.join(kinds)}")
             resolution_c = pace = None
             if dequantised and "dequantise_c" in item:
                 item = dict(item)
@@ -475,6 +497,12 @@ class _Checker:
                 if not 0 < tau_s <= MAX_TAU_S:
                     self.fail(where, f"needs 0 < tau_s <= {MAX_TAU_S:g}")
                 specs.append(InputSpec(TEMP_LAG, tau_s=tau_s, **source))
+            elif item["kind"] == TEMP_PLAY:
+                self.mapping(item, where, {"kind", "width_c"})
+                width_c = self.number(item["width_c"], f"{where}.width_c")
+                if not 0 < width_c <= MAX_WIDTH_C:
+                    self.fail(where, f"needs 0 < width_c <= {MAX_WIDTH_C:g}")
+                specs.append(InputSpec(TEMP_PLAY, width_c=width_c, **source))
             else:
                 self.mapping(item, where, {"kind"})
                 specs.append(InputSpec(item["kind"], **source))
