@@ -43,7 +43,13 @@ from fogd.calibration.selection import (
 )
 from fogd.calibration.training import TrainConfig, train
 from fogd.core.columns import CHANNELS, channel_unit, truth_column
-from fogd.core.inputs import DEFAULT_INPUTS_TEXT, default_inputs, parse_inputs
+from fogd.core.dequantise import COARSE_RESOLUTION_C
+from fogd.core.inputs import (
+    COARSE_DEFAULT_INPUTS_TEXT,
+    DEFAULT_INPUTS_TEXT,
+    default_inputs,
+    parse_inputs,
+)
 from fogd.core.runio import Run
 from fogd.simulation.profiles import builtin
 from fogd.simulation.simulator import Simulation, params_for, simulate
@@ -258,9 +264,11 @@ def main() -> None:
                     raise SystemExit("tools/quantisation_bound.py's held-out runs differ from this table's")
                 extra = {} if args.hysteresis_dph is None else {"hysteresis_dph": args.hysteresis_dph}
                 bound = quantisation_bound.run_bounds(thermal, resolution_c, sensor_hz, args.rate_hz, args.seed, **extra)
+            # fogd-train gives a coarse sensor its own default inputs (fogd.calibration.training.for_sensor)
+            shown = args.default_inputs or (COARSE_DEFAULT_INPUTS_TEXT if resolution_c >= COARSE_RESOLUTION_C else None)
             print_table(f"Navigation-grade gyro, {thermal} coil, {sensor} sensor; {args.rate_hz:g} Hz, seed {args.seed}"
                         f"{', PSO 20 x 20' if args.quick else ''}{hysteresis}: std of 100 s block means after 600 s / noise floor",
-                        rows, args.default_inputs, bound)  # fmt: skip
+                        rows, shown, bound)  # fmt: skip
 
 
 if __name__ == "__main__":

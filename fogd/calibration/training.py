@@ -21,6 +21,7 @@ from fogd.core.dequantise import COARSE_RESOLUTION_C, detect_resolution_c
 from fogd.core.errorstats import ErrorStats
 from fogd.core.frozen import FrozenModel
 from fogd.core.inputs import (
+    COARSE_DEFAULT_INPUTS_TEXT,
     DEFAULT_INPUTS_TEXT,
     MAX_RESOLUTION_C,
     InputSpec,
@@ -50,7 +51,8 @@ class TrainConfig:
 
 def for_sensor(runs: list[Run], config: TrainConfig) -> TrainConfig:
     """`config` with its inputs computed from the dequantised temperature when the runs' sensor is coarse
-    (fogd.core.dequantise: a KVH's whole degrees), from the readings otherwise; inputs already marked are kept."""
+    (fogd.core.dequantise: a KVH's whole degrees), from the readings otherwise; inputs already marked are kept.
+    The default inputs become a coarse sensor's default (COARSE_DEFAULT_INPUTS_TEXT) when it is dequantised."""
     if any(spec.dequantise_c is not None for spec in config.inputs):
         return config
     resolution_c = config.sensor_resolution_c
@@ -61,7 +63,10 @@ def for_sensor(runs: list[Run], config: TrainConfig) -> TrainConfig:
         resolution_c = detect_resolution_c([run.temp_c for run in runs])
     if not COARSE_RESOLUTION_C <= resolution_c <= MAX_RESOLUTION_C:  # beyond: jumps, not a sensor's steps
         return config
-    return dataclasses.replace(config, inputs=dequantised(config.inputs, resolution_c))
+    inputs = config.inputs
+    if inputs == parse_inputs(DEFAULT_INPUTS_TEXT):  # the default: a coarse sensor's own (fogd.core.inputs)
+        inputs = parse_inputs(COARSE_DEFAULT_INPUTS_TEXT)
+    return dataclasses.replace(config, inputs=dequantised(inputs, resolution_c))
 
 
 @dataclass

@@ -233,7 +233,16 @@ STATIC_MAX_TAU_S = 1000.0  # temperatures that follow the coil: the sensor's and
 # only calibration runs). The sensor's own temperature carries what no lag has: the housing's latest move,
 # which the coil's rate and gradient follow at once (tools/accuracy_table.py --quick, diffusive coil, fine
 # sensor, fast-ramp: 3.10x the floor with the previous default, lags only under the poly trend; 1.37x now).
-DEFAULT_INPUTS_TEXT = "temp,lags@30..3000/5"
+# A fine sensor's default is denser and down to 10 s, and has the play operator (fogd.core.play): the gyro's
+# heating/cooling hysteresis is what no lag can hold, and without it the denser bank bent its fast lags to
+# stand in for it (tools/trend_diagnostic.py --inputs temp,lags@10..3000/7 --case true/true --play '' --play 2:
+# the coil trend alone on the true sensor temperature, seed 1, worst held-out run 1.38x lumped and 1.47x
+# diffusive without it, 1.12x and 1.17x with play@2). tools/accuracy_table.py --quick --sensor fine --schemes default, worst run, seeds 1 / 2:
+# lumped 1.52 / 1.92 before, 1.18 / 1.22 with it; diffusive 1.48 / 1.45 before, 1.37 / 1.39 with it.
+# A coarse sensor (dequantised) keeps the sparser bank: the denser one took its fast runs down and its slow
+# ones up (whole degrees, seed 1: paper-test 2.70 -> 3.30 lumped, 3.63 -> 4.47 diffusive).
+DEFAULT_INPUTS_TEXT = "temp,lags@10..3000/7,play@2"
+COARSE_DEFAULT_INPUTS_TEXT = "temp,lags@30..3000/5"
 
 
 def static_columns(specs: tuple[InputSpec, ...], max_tau_s: float = STATIC_MAX_TAU_S) -> tuple[int, ...]:
