@@ -15,6 +15,10 @@ time, each one of
     held      the true temperature sampled and held at the sensor's rate (the readings without noise or steps)
     quant     the true temperature quantised to the sensor's resolution (no noise, no sample-and-hold)
     noisy     the true temperature with the sensor's noise, sampled and held (no quantisation)
+    ma:W      causal: the mean of the last W s of readings (tma:W: of the true temperature)
+    inv:W     causal: ma:W through the inverse of the noise-dithered staircase (the expected reading as a
+              function of the temperature, Gaussian noise then the quantiser); exploratory: the sensor's
+              noise is taken as known from the simulation (inv:W:SIGMA assumes SIGMA C instead)
 and `+pre:TAU` after any of them puts a causal first-order lag of TAU s in front of the bank (fitted on the
 same lag of the fit temperature, so its delay is compensated). `--ridge` adds a ridge on the trend's scaled
 coefficients (`loro`: its strength chosen by leave-one-calibration-run-out drift about each run's mean);
@@ -26,6 +30,7 @@ trend's drift RMSE on the calibration blocks (fit) and left out run by run (loro
     python tools/trend_diagnostic.py --case read/read --case true/true --case true/read
     python tools/trend_diagnostic.py --inputs temp,lags@10..3000/7 --case true/true --case read/read --play '' --play 2
     python tools/trend_diagnostic.py --seed 3 --thermal diffusive --case held/held --case quant/quant --case noisy/noisy
+    python tools/trend_diagnostic.py --seed 1 --seed 2 --seed 3 --case read/read --case inv:10/inv:10
 """
 
 from __future__ import annotations
@@ -92,6 +97,12 @@ def temperature(run: SimRun, spec: str) -> np.ndarray:
             out = np.round(out / run.resolution_c) * run.resolution_c
         if name == "noisy":
             out = out + np.random.default_rng(run.seed).normal(0.0, run.noise_c, index[-1] + 1)[index]
+    elif name in ("ma", "inv", "tma"):  # causal: the mean of the last W s of readings (tma: of the true temperature);
+        # inv: then through the dithered staircase's inverse
+        window, _, noise = value.partition(":")
+        out = moving_mean(run.true_c if name == "tma" else run.read_c, round(float(window) * run.rate_hz))
+        if name == "inv":
+            out = undither(out, run.resolution_c, float(noise) if noise else run.noise_c)
     elif name == "fb":
         from scipy.signal import filtfilt
 
@@ -103,6 +114,30 @@ def temperature(run: SimRun, spec: str) -> np.ndarray:
     else:
         raise SystemExit(f"unknown temperature {spec!r}")
     return lag_batch(out, float(pre), run.rate_hz) if pre else out
+
+
+def moving_mean(values: np.ndarray, n: int) -> np.ndarray:
+    sums = np.cumsum(np.r_[0.0, values])
+    rows = np.arange(1, values.size + 1)
+    start = np.maximum(rows - n, 0)
+    return (sums[rows] - sums[start]) / (rows - start)
+
+
+def undither(mean_c: np.ndarray, resolution_c: float, noise_c: float) -> np.ndarray:
+    """The temperature whose expected reading (Gaussian noise, then the quantiser) is `mean_c`: the inverse of
+    the dithered staircase, periodic in the resolution (an exploratory estimate: the noise is taken as known)."""
+    from scipy.stats import norm
+
+    x = np.linspace(0.0, 1.0, 2001)  # in steps, within one period
+    s = max(noise_c / resolution_c, 1e-3)
+    k = np.arange(-3, 5)[:, None]
+    expected = (k * (norm.cdf((k + 0.5 - x) / s) - norm.cdf((k - 0.5 - x) / s))).sum(axis=0)
+    base = np.floor(mean_c / resolution_c)
+    frac = mean_c / resolution_c - base
+    # expected(x) runs from expected(0) to expected(1) = expected(0) + 1 over a period: shift into that range
+    lift = frac < expected[0]
+    frac, base = np.where(lift, frac + 1.0, frac), np.where(lift, base - 1.0, base)
+    return (base + np.interp(frac, expected, x)) * resolution_c
 
 
 def spline_c(run: SimRun) -> np.ndarray:
