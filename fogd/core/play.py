@@ -33,13 +33,36 @@ class PlayFilter:
 
     def update(self, temp_c: np.ndarray) -> np.ndarray:
         temp_c = np.atleast_1d(np.asarray(temp_c, dtype=np.float64))
-        return np.array([self.update_one(value) for value in temp_c.tolist()], dtype=np.float64)
+        if temp_c.size == 0:
+            return np.empty(0)
+        values = temp_c.tolist()
+        width_c = self.width_c
+        position_c = values[0] if self._position_c is None else self._position_c
+        out = []
+        append = out.append
+        for value in values:  # update_one's arithmetic inline: the same floats, without a call per sample
+            low_c = value - width_c
+            if position_c < low_c:
+                position_c = low_c
+            else:
+                high_c = value + width_c
+                if position_c > high_c:  # noqa: PLR1730 (min() costs a call per sample)
+                    position_c = high_c
+            append((value - position_c) / width_c)
+        self._position_c = position_c
+        return np.array(out, dtype=np.float64)
 
     def update_one(self, temp_c: float) -> float:
         """Feed one sample; the operator's output, the same float `update` gives."""
         width_c = self.width_c
         position_c = temp_c if self._position_c is None else self._position_c
-        position_c = min(max(position_c, temp_c - width_c), temp_c + width_c)
+        low_c = temp_c - width_c  # min(max(position, low), high), without the builtins' call cost
+        if position_c < low_c:
+            position_c = low_c
+        else:
+            high_c = temp_c + width_c
+            if position_c > high_c:  # noqa: PLR1730 (min() costs a call per sample)
+                position_c = high_c
         self._position_c = position_c
         return (temp_c - position_c) / width_c
 
