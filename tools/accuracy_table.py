@@ -82,8 +82,14 @@ def simulated_run(profile: str, seed: int, rate_hz: float, params) -> Run:
     return Run(f"{profile}.csv", sim.t_s, sim.rate_dph, sim.temp_c, rate_hz, digest, {"true_error_dph": sim.true_error_dph})
 
 
+def sim_overrides(args) -> dict[str, float]:
+    """The simulated gyro's settings the command line changes from the navigation preset's."""
+    given = {"hysteresis_dph": args.hysteresis_dph, "hysteresis_deadband_c": args.hysteresis_deadband_c}
+    return {key: value for key, value in given.items() if value is not None}
+
+
 def evaluate(args, thermal: str, resolution_c: float, sensor_hz: float) -> dict[str, list]:
-    extra = {} if args.hysteresis_dph is None else {"hysteresis_dph": args.hysteresis_dph}
+    extra = sim_overrides(args)
     params = params_for("navigation", thermal, sensor_resolution_c=resolution_c, sensor_rate_hz=sensor_hz, **extra)
     calibration = [simulated_run(name, args.seed + i, args.rate_hz, params) for i, name in enumerate(CALIBRATION)]
     held_out = [simulated_run(name, args.seed + 100 + i, args.rate_hz, params) for i, name in enumerate(HELD_OUT)]
@@ -123,7 +129,7 @@ def simulated_imu_run(profile: str, seed: int, rate_hz: float, params) -> Run:
 
 def evaluate_imu(args, thermal: str, resolution_c: float, sensor_hz: float) -> dict[str, dict[str, list]]:
     """Per channel: the held-out runs' (after / floor, fallback share), before / floor, and the floor."""
-    extra = {} if args.hysteresis_dph is None else {"hysteresis_dph": args.hysteresis_dph}
+    extra = sim_overrides(args)
     params = params_for("navigation", thermal, sensor_resolution_c=resolution_c, sensor_rate_hz=sensor_hz, **extra)
     calibration = [simulated_imu_run(name, args.seed + i, args.rate_hz, params) for i, name in enumerate(CALIBRATION)]
     held_out = [simulated_imu_run(name, args.seed + 100 + i, args.rate_hz, params) for i, name in enumerate(HELD_OUT)]
@@ -222,6 +228,9 @@ def main() -> None:
     parser.add_argument("--hysteresis-dph", type=float, default=None,
                         help="the simulated gyro's play hysteresis, deg/h (default: the navigation preset's, 0.001); "
                              "0 shows what the thermal model alone leaves (with --imu every channel's play follows it)")
+    parser.add_argument("--hysteresis-deadband-c", type=float, default=None,
+                        help="the width of the simulated gyro's play, C (default 2): another gyro than the one the "
+                             "default was tuned on")
     parser.add_argument("--schemes", type=lambda text: text.split(","), default=None,
                         help="only these schemes, comma-separated, of: " + ", ".join(SCHEME_KEYS.values())
                              + " (default: all)")
@@ -247,6 +256,8 @@ def main() -> None:
                 continue
             print(f"# {thermal} coil, {sensor} sensor", flush=True)
             hysteresis = "" if args.hysteresis_dph is None else f", hysteresis {args.hysteresis_dph:g} deg/h"
+            if args.hysteresis_deadband_c is not None:
+                hysteresis += f", play width {args.hysteresis_deadband_c:g} C"
             if args.default_inputs:
                 hysteresis += f", the default's inputs {args.default_inputs}"
             if args.imu:
@@ -262,7 +273,7 @@ def main() -> None:
 
                 if quantisation_bound.HELD_OUT != HELD_OUT:
                     raise SystemExit("tools/quantisation_bound.py's held-out runs differ from this table's")
-                extra = {} if args.hysteresis_dph is None else {"hysteresis_dph": args.hysteresis_dph}
+                extra = sim_overrides(args)
                 bound = quantisation_bound.run_bounds(thermal, resolution_c, sensor_hz, args.rate_hz, args.seed, **extra)
             # fogd-train gives a coarse sensor its own default inputs (fogd.calibration.training.for_sensor)
             shown = args.default_inputs or (COARSE_DEFAULT_INPUTS_TEXT if resolution_c >= COARSE_RESOLUTION_C else None)
