@@ -299,3 +299,25 @@ def test_lag_bank_one_sample_chunks_equal_big_chunks():
         chunked = compensated_in_chunks(model, rate, temp, size)
         assert chunked["flags"].tobytes() == whole["flags"].tobytes()
         np.testing.assert_allclose(chunked["comp_dph"], whole["comp_dph"], rtol=1e-12, atol=1e-12)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.integers(1, 6),
+    st.integers(0, 4),
+    st.integers(0, 2**32 - 1),
+)
+def test_monomials_reusing_leading_factors_equal_the_products_written_out(inputs, degree, seed):
+    """`frozen.monomials` forms each monomial once per distinct prefix of factors; each must equal the
+    product of its own factors x_j ** p, formed left to right in column order (bit for bit), in any order of
+    the rows, the constant included."""
+    rng = np.random.default_rng(seed)
+    powers = rng.integers(0, degree + 1, size=(rng.integers(1, 30), inputs))
+    xs = rng.normal(0.0, 2.0, size=(7, inputs))
+    got = frozen.monomials(xs, powers)
+    for k, row in enumerate(powers.tolist()):
+        expected = np.ones(xs.shape[0])
+        for column, power in enumerate(row):
+            if power:
+                expected = expected * (xs[:, column] if power == 1 else xs[:, column] ** power)
+        assert np.array_equal(got[:, k], expected), (row, got[:, k], expected)

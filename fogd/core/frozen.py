@@ -19,6 +19,7 @@ relative; large kernel models go through numpy instead, one row at a time (`POIN
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
@@ -68,11 +69,73 @@ class Linear:
 
 
 def monomials(xs: np.ndarray, powers: np.ndarray) -> np.ndarray:
-    """Each row's monomials prod_j x_j ** powers_kj: the polynomial's features, in fitting and evaluation alike."""
-    terms = np.ones((xs.shape[0], powers.shape[0]))
-    for column in range(powers.shape[1]):
-        terms *= xs[:, column : column + 1] ** powers[:, column]
+    """Each row's monomials prod_j x_j ** powers_kj: the polynomial's features, in fitting and evaluation alike.
+
+    Each monomial is the product of its nonzero factors x_j ** p in column order, left to right (x ** 0 is
+    1.0 and 1.0 * x is x exactly, so leaving them out changes nothing), and reuses the product of its leading
+    factors when another monomial has formed it: a coil trend's cubic in nine inputs is 220 monomials formed
+    in about 220 vector products instead of 220 x 9 powers and products (tools/bench_point.py 1b). Products
+    are formed in place in the monomials' own columns; only leading factors that are no monomial take more."""
+    xs = np.asarray(xs, dtype=np.float64)
+    plan = _monomial_plan(np.asarray(powers))
+    terms = np.empty((xs.shape[0], len(plan.outputs)))
+    factors: dict[tuple[int, int], np.ndarray] = {}
+    products: list[np.ndarray] = []
+    for step, (parent, column, power) in enumerate(plan.steps):
+        factor = factors.get((column, power))
+        if factor is None:
+            factor = factors[(column, power)] = xs[:, column] if power == 1 else xs[:, column] ** power
+        k = plan.column_of[step]
+        out = terms[:, k] if k >= 0 else None
+        if parent >= 0:
+            products.append(np.multiply(products[parent], factor, out=out))
+        elif out is not None:
+            out[:] = factor
+            products.append(out)
+        else:
+            products.append(factor)
+    for k, node in enumerate(plan.outputs):
+        if node < 0:
+            terms[:, k] = 1.0
+        elif plan.column_of[node] != k:  # a monomial listed twice
+            terms[:, k] = terms[:, plan.column_of[node]]
     return terms
+
+
+@dataclass(frozen=True)
+class _MonomialPlan:
+    steps: tuple[tuple[int, int, int], ...]  # (parent step or -1, column, power): one product each
+    outputs: tuple[int, ...]  # each monomial's step, -1 for the constant 1
+    column_of: tuple[int, ...]  # per step, the first monomial it is (its column), or -1
+
+
+def _monomial_plan(powers: np.ndarray) -> _MonomialPlan:
+    """The products `monomials` forms for `powers`, each prefix of factors once."""
+    table = powers.astype(np.int64)
+    return _plan_of(table.tobytes(), table.shape)
+
+
+@functools.lru_cache(maxsize=128)  # the tables in use (a model's, a fit's) stay; old ones leave
+def _plan_of(table_bytes: bytes, shape: tuple[int, ...]) -> _MonomialPlan:
+    steps: list[tuple[int, int, int]] = []
+    index: dict[tuple[tuple[int, int], ...], int] = {}
+    outputs = []
+    for row in np.frombuffer(table_bytes, dtype=np.int64).reshape(shape).tolist():
+        node, prefix = -1, ()
+        for column, power in enumerate(row):
+            if power == 0:
+                continue
+            prefix = (*prefix, (column, power))
+            if prefix not in index:
+                index[prefix] = len(steps)
+                steps.append((node, column, power))
+            node = index[prefix]
+        outputs.append(node)
+    column_of = [-1] * len(steps)
+    for k, node in enumerate(outputs):
+        if node >= 0 and column_of[node] < 0:
+            column_of[node] = k
+    return _MonomialPlan(tuple(steps), tuple(outputs), tuple(column_of))
 
 
 @dataclass(frozen=True)
