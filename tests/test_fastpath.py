@@ -309,8 +309,8 @@ def test_lag_bank_one_sample_chunks_equal_big_chunks():
 )
 def test_monomials_reusing_leading_factors_equal_the_products_written_out(inputs, degree, seed):
     """`frozen.monomials` forms each monomial once per distinct prefix of factors; each must equal the
-    product of its own factors x_j ** p, formed left to right in column order (bit for bit), in any order of
-    the rows, the constant included."""
+    product of its own factors x_j ** p (numpy's power against an array of exponents, as StackedModels'
+    table), formed left to right in column order, bit for bit, in any order of the rows, the constant too."""
     rng = np.random.default_rng(seed)
     powers = rng.integers(0, degree + 1, size=(rng.integers(1, 30), inputs))
     xs = rng.normal(0.0, 2.0, size=(7, inputs))
@@ -319,5 +319,5 @@ def test_monomials_reusing_leading_factors_equal_the_products_written_out(inputs
         expected = np.ones(xs.shape[0])
         for column, power in enumerate(row):
             if power:
-                expected = expected * (xs[:, column] if power == 1 else xs[:, column] ** power)
+                expected = expected * np.power(xs[:, column : column + 1], np.arange(power + 1.0))[:, power]
         assert np.array_equal(got[:, k], expected), (row, got[:, k], expected)

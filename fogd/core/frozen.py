@@ -72,19 +72,24 @@ def monomials(xs: np.ndarray, powers: np.ndarray) -> np.ndarray:
     """Each row's monomials prod_j x_j ** powers_kj: the polynomial's features, in fitting and evaluation alike.
 
     Each monomial is the product of its nonzero factors x_j ** p in column order, left to right (x ** 0 is
-    1.0 and 1.0 * x is x exactly, so leaving them out changes nothing), and reuses the product of its leading
+    1.0 and 1.0 * x is x exactly, so leaving them out changes nothing: the floats of the full product, and of
+    StackedModels' trend), and reuses the product of its leading
     factors when another monomial has formed it: a coil trend's cubic in nine inputs is 220 monomials formed
     in about 220 vector products instead of 220 x 9 powers and products (tools/bench_point.py 1b). Products
     are formed in place in the monomials' own columns; only leading factors that are no monomial take more."""
     xs = np.asarray(xs, dtype=np.float64)
     plan = _monomial_plan(np.asarray(powers))
     terms = np.empty((xs.shape[0], len(plan.outputs)))
-    factors: dict[tuple[int, int], np.ndarray] = {}
+    # x_j ** p as one np.power of the column against the powers 0..max: the very floats StackedModels reads
+    # from its table (a scalar exponent would take numpy's other paths, x * x for 2, and part in the last bit)
+    exponents = np.arange(plan.top + 1, dtype=np.float64)
+    tables: dict[int, np.ndarray] = {}
     products: list[np.ndarray] = []
     for step, (parent, column, power) in enumerate(plan.steps):
-        factor = factors.get((column, power))
-        if factor is None:
-            factor = factors[(column, power)] = xs[:, column] if power == 1 else xs[:, column] ** power
+        table = tables.get(column)
+        if table is None:
+            table = tables[column] = np.power(xs[:, column : column + 1], exponents)
+        factor = table[:, power]
         k = plan.column_of[step]
         out = terms[:, k] if k >= 0 else None
         if parent >= 0:
@@ -107,6 +112,7 @@ class _MonomialPlan:
     steps: tuple[tuple[int, int, int], ...]  # (parent step or -1, column, power): one product each
     outputs: tuple[int, ...]  # each monomial's step, -1 for the constant 1
     column_of: tuple[int, ...]  # per step, the first monomial it is (its column), or -1
+    top: int  # the highest power
 
 
 def _monomial_plan(powers: np.ndarray) -> _MonomialPlan:
@@ -135,7 +141,7 @@ def _plan_of(table_bytes: bytes, shape: tuple[int, ...]) -> _MonomialPlan:
     for k, node in enumerate(outputs):
         if node >= 0 and column_of[node] < 0:
             column_of[node] = k
-    return _MonomialPlan(tuple(steps), tuple(outputs), tuple(column_of))
+    return _MonomialPlan(tuple(steps), tuple(outputs), tuple(column_of), max((step[2] for step in steps), default=0))
 
 
 @dataclass(frozen=True)
