@@ -262,9 +262,11 @@ def test_convergence_warnings_are_counted_not_printed(recwarn, monkeypatch) -> N
     assert fit("linear", x, y, groups, QUICK).unconverged_fits == 0
 
 
-def test_a_fitted_polynomial_that_extrapolates_wildly_is_refused_in_one_line() -> None:
+@pytest.mark.parametrize("unit", ["deg/h", "g"])
+def test_a_fitted_polynomial_that_extrapolates_wildly_is_refused_in_one_line(unit) -> None:
     """A 5th-order polynomial in six lagged temperatures reaches millions of deg/h at corners of the calibrated
-    box no run visited: fogd-train says so and what to use, not that the model it just fitted is hostile."""
+    box no run visited: fogd-train says so and what to use, not that the model it just fitted is hostile; in
+    the channel's own unit (an accelerometer's g)."""
     from fogd.calibration.training import TrainConfig, train
     from fogd.core.inputs import parse_inputs
     from fogd.core.runio import Run
@@ -276,8 +278,8 @@ def test_a_fitted_polynomial_that_extrapolates_wildly_is_refused_in_one_line() -
         temp_c = 20.0 + 25.0 * np.sin(t_s / (700.0 + 200.0 * k) + k) + rng.normal(0.0, 0.05, t_s.size)
         runs.append(Run(f"r{k}.csv", t_s, 0.01 * temp_c + rng.normal(0.0, 0.01, t_s.size), temp_c, 1.0, str(k), {}))
     config = TrainConfig(method="ls-poly", inputs=parse_inputs("temp,lags@30..3000/5"), block_s=4.0,
-                         fit=FitOptions(progress=False))  # fmt: skip
-    with pytest.raises(InputError, match=r"ls-poly model reaches .* deg/h within its calibrated input range.*--degree"):
+                         fit=FitOptions(progress=False), unit=unit)  # fmt: skip
+    with pytest.raises(InputError, match=rf"ls-poly model reaches \S+ {unit} within its calibrated input range.*--degree"):
         train(runs, config)
 
 

@@ -164,6 +164,7 @@ def _fit(job: ChannelJob, settings: Settings, result: ChannelFit) -> None:
     if job.channel is not None and config.name:
         config = dataclasses.replace(config, name=f"{config.name} {job.channel}")
     unit = channel_unit(job.channel)
+    config = dataclasses.replace(config, unit=unit)
     runs = job.runs
     if settings.auto:
         best, candidates = select(runs, config, settings.sets, log=say.err if settings.log else None, unit=unit)

@@ -47,6 +47,7 @@ class TrainConfig:
     name: str | None = None
     domain_guard: bool = False  # store the joint-space guard and its linear fallback (fogd.core.domain), as --domain-guard
     sensor_resolution_c: float | None = None  # None: detected from the runs; a coarse sensor is dequantised
+    unit: str = "deg/h"  # the channel's unit, for what training says (an accelerometer's is g)
 
 
 def for_sensor(runs: list[Run], config: TrainConfig) -> TrainConfig:
@@ -142,9 +143,10 @@ def train(runs: list[Run], config: TrainConfig, prepared: tuple[TrainingSet, flo
         model = modelfile.from_document(document)
     except modelfile.ModelOutputError as error:  # fitted here, so not hostile: a polynomial that extrapolates
         raise InputError(
-            f"the fitted {config.method} model reaches {error.value_dph:.3g} deg/h within its calibrated input range "
-            f"(beyond the {modelfile.MAX_COMP_DPH:g} deg/h any gyro could need): a polynomial extrapolating between "
-            "inputs; use the default --method pso-svr, or a lower --degree or --poly-terms temp") from None
+            f"the fitted {config.method} model reaches {error.value_dph:.3g} {config.unit} within its calibrated input "
+            f"range (beyond the {modelfile.MAX_COMP_DPH:g} {config.unit} any sensor could need): a polynomial "
+            "extrapolating between inputs; use the default --method pso-svr, or a lower --degree or --poly-terms temp"
+        ) from None
     fit_dph, _ = model.predict(data.x)
     metrics["train_after"] = ErrorStats.about_run_means(error - fit_dph, data.groups).to_dict()
     return Trained(document, model, fitted, data, reference, error, fit_dph)
