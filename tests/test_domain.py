@@ -1,4 +1,5 @@
-"""The joint-space domain guard: distances, threshold, model-file round trip, fallback and flags in the compensator."""
+"""The domain guard (joint and range): distances, margins, model-file round trip, fallback and flags in the compensator
+and in training."""
 
 import json
 
@@ -7,7 +8,15 @@ import pytest
 
 from fogd.core import modelfile
 from fogd.core.compensator import Compensator
-from fogd.core.domain import choose_threshold, nearest_distance, thin
+from fogd.core.domain import (
+    MIN_RANGE_MARGIN,
+    DomainGuard,
+    choose_range_margin,
+    choose_threshold,
+    nearest_distance,
+    range_box,
+    thin,
+)
 from fogd.core.estimator import EstimatorSettings
 from fogd.core.flags import Flag
 from fogd.core.inputs import default_inputs
@@ -95,3 +104,86 @@ def test_bad_guard_is_refused_in_one_line(tmp_path, change, message):
 def test_old_model_files_without_a_guard_still_load():
     model = modelfile.load("fogd/data/demo-model.json")
     assert "domain_guard" not in model.meta
+
+
+def test_range_guard_flags_rows_beyond_the_margin_and_temperatures_share_one_range():
+    points = np.array([[0.0, 0.0, -1.0], [1.0, 0.5, 1.0]])  # scaled units; columns 0 and 1 are temperatures
+    x_mean, x_scale = np.array([10.0, 10.0, 0.0]), np.array([2.0, 2.0, 1.0])
+    low, high = range_box(points, x_mean, x_scale, (0, 1))
+    np.testing.assert_allclose(low, [0.0, 0.0, -1.0])
+    np.testing.assert_allclose(high, [1.0, 1.0, 1.0])  # the slow column's range widened to the sensor's
+    guard = DomainGuard(points, 0.25, x_mean, x_scale, fallback=None, kind="range", shared=(0, 1))
+    raw = np.array([
+        [12.0, 11.9, 0.0],   # inside: column 1 beyond its own blocks (11.0) but within the temperatures' range
+        [12.4, 12.0, 0.0],   # 0.2 scaled units beyond: within the margin
+        [12.6, 12.0, 0.0],   # 0.3 beyond: outside
+        [10.0, 10.0, -1.3],  # the third input 0.3 below its range: outside
+        [np.nan, 10.0, 0.0],  # NaN: outside
+    ])  # fmt: skip
+    assert guard.outside(raw).tolist() == [False, False, True, True, True]
+    assert DomainGuard(points, 0.25, x_mean, x_scale, None, "range").outside(raw[:1]).tolist() == [True]
+
+
+def test_range_margin_covers_the_samples_and_has_a_floor():
+    low, high = np.zeros(2), np.ones(2)
+    samples = np.array([[0.5, 1.2]] * 1999 + [[0.5, 9.0]])  # one outlier sample does not set it
+    assert choose_range_margin(low, high, samples, factor=2.0) == pytest.approx(0.4)
+    assert choose_range_margin(low, high, np.full((10, 2), 0.5)) == MIN_RANGE_MARGIN
+
+
+def test_range_guard_round_trips_through_the_model_file(tmp_path):
+    doc = guarded_document(threshold=0.5)
+    doc["domain_guard"]["kind"] = "range"
+    path = tmp_path / "m.json"
+    modelfile.save(path, doc)
+    guard = modelfile.load(path).meta["domain_guard"]
+    assert guard.kind == "range" and guard.shared == (0,)  # the paper's inputs: temp is the one temperature
+    # calibration T 0..10, rate 0 (scaled); margin 0.5 scaled units: 0.5 C of temperature, 0.0005 C/s of rate
+    rows = np.array([[10.4, 0.0], [10.6, 0.0], [5.0, 0.0004], [5.0, -0.0006]])
+    assert guard.outside(rows).tolist() == [False, True, False, True]
+    doc["domain_guard"]["kind"] = "box"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(ModelFileError, match=r"domain_guard\.kind.*joint, range"):
+        modelfile.load(path)
+
+
+def _chamber_run(name: str, temp_c: np.ndarray, seed: int):
+    from fogd.core.runio import Run
+
+    t_s = np.arange(temp_c.size) / 1.0
+    rate = 0.01 * temp_c + np.random.default_rng(seed).normal(0.0, 0.01, temp_c.size)
+    return Run(f"{name}.csv", t_s, rate, temp_c, 1.0, str(seed), {})
+
+
+def test_training_guards_a_lag_bank_by_range_and_serves_every_history_inside_it():
+    """Calibrated 0..40 C by a heating and a cooling ramp; a held-out cycle and soak inside that range (a
+    history no calibration run had) is never sent to the fallback, a run that goes to 60 C is."""
+    from fogd.calibration.models import FitOptions
+    from fogd.calibration.training import TrainConfig, train
+    from fogd.core.inputs import parse_inputs
+
+    ramp = np.r_[np.full(600, 0.0), np.linspace(0.0, 40.0, 6000), np.full(1200, 40.0)]
+    runs = [_chamber_run("heat", ramp, 1), _chamber_run("cool", ramp[::-1].copy(), 2)]
+    config = TrainConfig(method="linear", inputs=parse_inputs("temp,lags@100..1000/3"), block_s=50.0,
+                         fit=FitOptions(progress=False), domain_guard=True)  # fmt: skip
+    model = train(runs, config).model
+    guard = model.meta["domain_guard"]
+    assert guard.kind == "range"
+    t = np.arange(8000.0)
+    inside = 20.0 + 15.0 * np.sin(t / 300.0) * (t < 5000) + 15.0 * (t >= 5000)  # fast cycles, then a soak at 35 C
+    hot = np.minimum(20.0 + t / 100.0, 60.0)
+    for temps, expect_outside in ((inside, False), (hot, True)):
+        out = Compensator(model, 1.0).process(np.zeros(t.size), temps)
+        assert ((out.flags & Flag.OUT_OF_DOMAIN) != 0).any() == expect_outside
+
+
+def test_training_keeps_the_joint_guard_for_the_papers_inputs():
+    from fogd.calibration.models import FitOptions
+    from fogd.calibration.training import TrainConfig, train
+    from fogd.core.inputs import parse_inputs
+
+    ramp = np.r_[np.full(600, 0.0), np.linspace(0.0, 40.0, 6000), np.full(1200, 40.0)]
+    runs = [_chamber_run("heat", ramp, 1), _chamber_run("cool", ramp[::-1].copy(), 2)]
+    config = TrainConfig(method="linear", inputs=parse_inputs("temp,rate@50"), block_s=50.0,
+                         fit=FitOptions(progress=False), domain_guard=True)  # fmt: skip
+    assert train(runs, config).model.meta["domain_guard"].kind == "joint"

@@ -24,6 +24,8 @@ from fogd.core.inputs import (
     COARSE_DEFAULT_INPUTS_TEXT,
     DEFAULT_INPUTS_TEXT,
     MAX_RESOLUTION_C,
+    TEMP,
+    TEMP_RATE,
     InputSpec,
     dequantised,
     parse_inputs,
@@ -45,7 +47,7 @@ class TrainConfig:
     reference: str | float = "mean"  # 'mean' of all training blocks, or a rate in deg/h
     fit: FitOptions = field(default_factory=FitOptions)
     name: str | None = None
-    domain_guard: bool = False  # store the joint-space guard and its linear fallback (fogd.core.domain), as --domain-guard
+    domain_guard: bool = False  # store a domain guard and its linear fallback (fogd.core.domain), as --domain-guard
     sensor_resolution_c: float | None = None  # None: detected from the runs; a coarse sensor is dequantised
     unit: str = "deg/h"  # the channel's unit, for what training says (an accelerometer's is g)
 
@@ -137,7 +139,7 @@ def train(runs: list[Run], config: TrainConfig, prepared: tuple[TrainingSet, flo
         },
         metrics=metrics,
         created_utc=created,
-        domain_guard=domain_guard_document(data, error, fitted, config.fit) if config.domain_guard else None,
+        domain_guard=domain_guard_document(data, error, fitted, config.fit, config.inputs) if config.domain_guard else None,
     )
     try:
         model = modelfile.from_document(document)
@@ -170,9 +172,13 @@ def options_for_inputs(options: FitOptions, specs: tuple[InputSpec, ...]) -> Fit
                                static_columns=static_columns(specs), shifted_columns=shifted_columns(specs))  # fmt: skip
 
 
-def domain_guard_document(data: TrainingSet, error: np.ndarray, fitted: Fitted, options: FitOptions) -> dict[str, Any]:
+def domain_guard_document(data: TrainingSet, error: np.ndarray, fitted: Fitted, options: FitOptions,
+                          specs: tuple[InputSpec, ...]) -> dict[str, Any]:  # fmt: skip
     """The model file's `domain_guard`: the calibration blocks in the model's scaled units, the threshold and
-    the linear fallback (fitted to the same blocks, so it shares the model's scaling exactly)."""
+    the linear fallback (fitted to the same blocks, so it shares the model's scaling exactly). A "range" guard
+    for a model with dynamic inputs (a lag bank, a dequantised estimate, a play operator: every new
+    temperature history is far from the calibration runs' few trajectories through them), the joint one for
+    the others (fogd.core.domain)."""
     linear = fitted if fitted.method == "linear" else fit("linear", data.x, error, data.groups, options)
     same = all(np.array_equal(a, b) for a, b in (
         (linear.x_mean, fitted.x_mean), (linear.x_scale, fitted.x_scale),
@@ -181,11 +187,12 @@ def domain_guard_document(data: TrainingSet, error: np.ndarray, fitted: Fitted, 
         raise AssertionError("the linear fallback must share the model's scaling")
     points = domain.thin((data.x - fitted.x_mean) / fitted.x_scale)
     samples = None if data.x_samples is None else (data.x_samples - fitted.x_mean) / fitted.x_scale
-    return {
-        "points": points.tolist(),
-        "threshold": domain.choose_threshold(points, samples),
-        "fallback": {"method": "linear", "params": linear.params},
-    }
+    fallback = {"method": "linear", "params": linear.params}
+    if all(spec.kind in (TEMP, TEMP_RATE) and spec.dequantise_c is None for spec in specs):
+        return {"points": points.tolist(), "threshold": domain.choose_threshold(points, samples), "fallback": fallback}
+    low, high = domain.range_box(points, fitted.x_mean, fitted.x_scale, temperature_columns(specs))
+    margin = domain.choose_range_margin(low, high, samples)
+    return {"kind": "range", "points": points.tolist(), "threshold": margin, "fallback": fallback}
 
 
 def _json_ready(values: dict[str, Any]) -> dict[str, Any]:

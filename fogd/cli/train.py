@@ -94,10 +94,11 @@ def parser() -> ArgumentParser:
     )  # fmt: skip
     p.add_argument(
         "--domain-guard", action=argparse.BooleanOptionalAction, default=False,
-        help="store the joint-space domain guard: samples far from every calibration block are flagged "
-        "OUT_OF_DOMAIN and compensated by a linear fallback (off by default: the trend under the SVR is what "
-        "a sample outside the calibration data gets, and with a lag bank the guard would refuse ordinary "
-        "temperature histories)",
+        help="store a domain guard: samples outside the calibration data are flagged OUT_OF_DOMAIN and "
+        "compensated by a linear fallback. With a lag bank or a play input it guards the calibrated range "
+        "(temperatures beyond the calibration runs' by more than a margin); with the paper's inputs, the "
+        "joint space of temperature and rates (samples far from every calibration block). Off by default: "
+        "the clamped trend under the SVR is what a sample outside the calibration data gets",
     )  # fmt: skip
     p.add_argument(
         "--force", action="store_true",

@@ -18,9 +18,10 @@ Policies (documented in the README):
 - Invalid rate (NaN, Inf, or the caller's `rate_valid` false): flagged RATE_INVALID; the estimator still
   advances, the compensated rate is the input passed through unchanged.
 - Calibrated domain: inputs are clamped to the training range and the sample flagged CLAMPED.
-- Joint domain (models with a `domain_guard`, fogd.core.domain): a sample whose input row is far from every
-  calibration block in the scaled joint space is flagged OUT_OF_DOMAIN and compensated by the fallback model
-  stored with the guard (the linear IEEE 952 fit on the same blocks) instead of the main model. Warm-up
+- Guarded domain (models with a `domain_guard`, fogd.core.domain): a sample beyond the calibrated range by
+  more than the guard's margin ("range", lag-bank models), or far from every calibration block in the scaled
+  joint space ("joint", the paper's inputs), is flagged OUT_OF_DOMAIN and compensated by the fallback model
+  stored with the guard (the linear fit on the same blocks and inputs) instead of the main model. Warm-up
   samples are not guarded (their rate inputs are not real yet).
 """
 

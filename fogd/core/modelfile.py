@@ -10,7 +10,9 @@ compatibly (files written before still load; older fogd refuses the new parts by
 inputs may be `temp_lag_c` (with `tau_s`) and several `temp_rate_cps` windows, and an optional top-level
 `domain_guard` holds the joint-space guard of fogd.core.domain: `points` (calibration block rows in scaled units),
 `threshold` (scaled distance) and `fallback` (`{"method": "linear", "params": {"coef", "intercept"}}`, in the
-model's own input and output scaling).
+model's own input and output scaling). A guard may carry `kind` ("joint", as without it, or "range": `threshold` is
+then a margin beyond the points' range per input, the temperatures sharing one; fogd.core.domain); a fogd from
+before the key refuses it by name rather than guard the wrong domain.
 
 Version 3 is a multi-channel file (an IMU's gyros and accelerometers, fogd.core.columns.CHANNELS): `channels`
 maps each channel it covers to that channel's model, a whole version-2 (or 4) document, validated as one; beside it
@@ -47,7 +49,7 @@ from fogd.core.atomic import read_regular, replaced
 from fogd.core.channels import ChannelModels
 from fogd.core.columns import CHANNELS, SINGLE_CHANNEL
 from fogd.core.dequantise import PACES
-from fogd.core.domain import DomainGuard
+from fogd.core.domain import GUARD_KINDS, DomainGuard
 from fogd.core.estimator import EstimatorSettings
 from fogd.core.frozen import FrozenModel, build_evaluator
 from fogd.core.inputs import (
@@ -57,6 +59,7 @@ from fogd.core.inputs import (
     TEMP_PLAY,
     TEMP_RATE,
     InputSpec,
+    temperature_columns,
 )
 from fogd.core.lag import MAX_TAU_S
 from fogd.core.play import MAX_WIDTH_C
@@ -80,6 +83,7 @@ TOP_KEYS = {
 }  # fmt: skip
 OPTIONAL_TOP_KEYS = {"domain_guard"}
 GUARD_KEYS = {"points", "threshold", "fallback"}
+OPTIONAL_GUARD_KEYS = {"kind"}  # fogd.core.domain.GUARD_KINDS; without it, "joint"
 PARAM_KEYS = {
     "linear": {"coef", "intercept"},
     "ls-poly": {"powers", "coef", "intercept"},
@@ -511,7 +515,10 @@ class _Checker:
         return tuple(specs)
 
     def guard(self, value: Any, inputs, x_mean, x_scale, y_mean, y_scale, domain_min, domain_max, name) -> DomainGuard:
-        self.mapping(value, "domain_guard", GUARD_KEYS)
+        self.mapping(value, "domain_guard", GUARD_KEYS, optional=OPTIONAL_GUARD_KEYS)
+        kind = value.get("kind", "joint")
+        if kind not in GUARD_KINDS:
+            self.fail("domain_guard.kind", f"is {str(kind)[:40]!r}; expected one of {', '.join(GUARD_KINDS)}")
         d = len(inputs)
         points = self.matrix(value["points"], "domain_guard.points", d)
         threshold = self.number(value["threshold"], "domain_guard.threshold", positive=True)
@@ -529,7 +536,8 @@ class _Checker:
             domain_min=domain_min, domain_max=domain_max, evaluator=build_evaluator("linear", params),
             name=f"{name} (fallback)",
         )  # fmt: skip
-        return DomainGuard(points, threshold, x_mean, x_scale, model)
+        shared = temperature_columns(inputs) if kind == "range" else ()
+        return DomainGuard(points, threshold, x_mean, x_scale, model, kind, shared)
 
     def params(self, value: Any, method: str, d: int) -> dict[str, Any]:
         self.mapping(value, "params", PARAM_KEYS[method], optional=OPTIONAL_PARAM_KEYS.get(method, set()))
