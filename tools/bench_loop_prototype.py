@@ -40,9 +40,9 @@ def main(argv: list[str]) -> int:
 
     protocol = KvhProtocol(comp_axes=(2,))
     lexer = Lexer(protocol)
-    daemon = Daemon(reader=SimpleNamespace(ring=None), writer=None, formatter=None, model=modelfile.load(model_path),
-                    rate_hz=1000.0, axis=2, temp_stale_s=2.0, status_interval_s=3600.0)  # fmt: skip
     formatter = Formatter("same", protocol, 2)
+    daemon = Daemon(reader=SimpleNamespace(ring=None), writer=None, formatter=formatter, model=modelfile.load(model_path),
+                    rate_hz=1000.0, axis=2, temp_stale_s=2.0, status_interval_s=3600.0)  # fmt: skip
     source = os.open(source_path, os.O_RDONLY | os.O_NOCTTY | os.O_NONBLOCK)
     sink = os.open(sink_path, os.O_WRONLY | os.O_NOCTTY | os.O_NONBLOCK)
     for fd in (source, sink):
