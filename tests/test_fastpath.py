@@ -114,15 +114,16 @@ def test_predict_one_equals_predict(name):
     assert [flag for _, flag in got] == want_clamped.tolist()
 
 
-@pytest.mark.parametrize("centres", [5, 40])  # a Python loop over few centres, numpy over many
-def test_predict_one_equals_predict_with_a_lag_bank_and_a_coil_trend(centres):
+@pytest.mark.parametrize("read", [None, (0,), (0, 2, 5)])  # the kernel's inputs: every one, or some
+@pytest.mark.parametrize("centres", [5, 40, 400])  # a Python loop over few centres, numpy over many, the stack
+def test_predict_one_equals_predict_with_a_lag_bank_and_a_coil_trend(centres, read):
     """Six inputs (temp and five lags): the trend's monomials with zero and unit powers skipped, the kernel sum
     over the whole (centres, inputs) difference at once."""
     rng = np.random.default_rng(8)
     specs = parse_inputs("temp,lags@30..3000/5")
     powers = np.vstack([np.eye(6, dtype=np.int64), rng.integers(0, 3, size=(9, 6))])
-    evaluator = Svr(rng.normal(size=(centres, 6)), rng.normal(size=centres) * 50, 0.05, rng.normal(size=len(powers)),
-                    0.4, powers)  # fmt: skip
+    evaluator = Svr(rng.normal(size=(centres, 6 if read is None else len(read))), rng.normal(size=centres) * 50, 0.05,
+                    rng.normal(size=len(powers)), 0.4, powers, read)  # fmt: skip
     frozen_model = FrozenModel(method="pso-svr", inputs=specs, x_mean=np.full(6, 20.0), x_scale=np.full(6, 15.0),
                                y_mean=0.3, y_scale=0.08, domain_min=np.full(6, -10.0), domain_max=np.full(6, 50.0),
                                evaluator=evaluator)  # fmt: skip

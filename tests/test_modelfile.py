@@ -445,6 +445,13 @@ BAD_FIELDS = [
     ("pso-svr", "params.gamma", True, ["params.gamma", "number"]),
     ("pso-svr", "params.gamma", 10**400, ["params.gamma", "number"]),
     ("pso-svr", "params.dual_coef", [0.9, -(10**400), 0.3, -1.0], ["params.dual_coef[1]", "number"]),
+    ("pso-svr", "params.kernel_columns", [2], ["params.kernel_columns", "increasing order"]),
+    ("pso-svr", "params.kernel_columns", [1, 0], ["params.kernel_columns", "increasing order"]),
+    ("pso-svr", "params.kernel_columns", [0, 0], ["params.kernel_columns", "each once"]),
+    ("pso-svr", "params.kernel_columns", [], ["params.kernel_columns"]),
+    ("pso-svr", "params.kernel_columns", [True], ["params.kernel_columns"]),
+    ("pso-svr", "params.kernel_columns", "0", ["params.kernel_columns"]),
+    ("pso-svr", "params.kernel_columns", [0], ["params.support_vectors[0]", "1 numbers"]),  # vectors of both inputs
 ]
 
 
@@ -644,3 +651,20 @@ def test_mutation_helpers_do_mutate():
     assert doc["inputs"][1]["window_s"] == 5.0 and "intercept" not in doc["params"]
     assert ("params", "coef", 1) in paths(doc)
 
+
+
+def test_a_kernel_of_some_inputs_reads_those_only(tmp_path):
+    """kernel_columns [1]: one-column support vectors, the kernel of the second input alone (written out here),
+    the trend over both; the one-row path agrees with the array path (within 1e-12, its sums in Python floats)."""
+    doc = make_doc("pso-svr")
+    doc["params"].update(kernel_columns=[1], support_vectors=[[0.2], [-0.5], [1.1], [0.0]])
+    model = modelfile.load(write_json(tmp_path, doc))
+    p = doc["params"]
+    x = inside_points()
+    xs = (x - X_MEAN) / X_SCALE
+    kernel = [sum(a * np.exp(-p["gamma"] * (row[1] - sv[0]) ** 2) for a, sv in zip(p["dual_coef"], p["support_vectors"]))
+              for row in xs]  # fmt: skip
+    want = Y_MEAN + Y_SCALE * (np.array(kernel) + xs @ np.array(p["trend_coef"]) + p["intercept"])
+    got, _ = model.predict(x)
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+    np.testing.assert_allclose([model.predict_one(row)[0] for row in x.tolist()], got, rtol=1e-12)

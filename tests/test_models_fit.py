@@ -291,3 +291,55 @@ def test_the_coil_trend_without_a_temperature_input_is_the_linear_trend() -> Non
                          progress=False)  # fmt: skip
     fitted = fit("pso-svr", x[:, 1:], y, groups, options)
     assert fitted.hyperparameters["trend"] == "linear" and "trend_powers" not in fitted.params
+
+
+def test_the_kernel_is_dropped_when_the_trend_alone_scores_as_well() -> None:
+    """An error the linear trend explains (plus noise): the swarm's kernel would only fit noise, so the model is
+    the trend alone, with no support vectors, and its frozen form still reproduces the estimator."""
+    rng = np.random.default_rng(7)
+    temp_c, rate_cps = rng.uniform(-15.0, 50.0, 120), rng.uniform(-0.02, 0.02, 120)
+    x, groups = np.c_[temp_c, rate_cps], np.sort(rng.integers(0, 3, 120))
+    y = 0.002 * temp_c + 2.0 * rate_cps + rng.normal(0.0, 0.002, 120)
+    fitted = fit("pso-svr", x, y, groups, FitOptions(particles=6, iterations=4, trend="linear", progress=False))
+    assert fitted.hyperparameters["kernel"].startswith("none")
+    assert fitted.params["support_vectors"] == [] and fitted.hyperparameters["support_vectors"] == 0
+    assert fitted.hyperparameters["trend_alone_dph"] <= min(fitted.fitness_history) * 1.02
+    xs = rng.uniform(-4.0, 4.0, (200, 2))
+    np.testing.assert_allclose(build_evaluator("pso-svr", fitted.params)(xs), fitted.estimator.predict(xs), rtol=0, atol=1e-12)
+
+
+def test_the_kernel_is_kept_where_it_beats_the_trend() -> None:
+    """A curve in temperature that the linear trend cannot follow: the kernel earns its place."""
+    x, y, groups = chamber_rows(120, seed=3, runs=3)
+    fitted = fit("pso-svr", x, y, groups, FitOptions(particles=6, iterations=4, trend="linear", progress=False))
+    assert fitted.hyperparameters["kernel"] == "rbf" and fitted.hyperparameters["support_vectors"] > 0
+    assert fitted.hyperparameters["trend_alone_dph"] > min(fitted.fitness_history) * 1.02
+
+
+def test_the_papers_recipe_keeps_its_kernel_unjudged() -> None:
+    x, y, groups = chamber_rows(90, seed=1)
+    fitted = fit("pso-svr", x, y, groups, FitOptions(particles=4, iterations=2, trend="none", fitness="train", progress=False))
+    assert "kernel" not in fitted.hyperparameters and fitted.hyperparameters["support_vectors"] > 0
+
+
+@pytest.mark.parametrize(("inputs", "read"), [("temp,lags@30..3000/5", [0]), ("lags@30..3000/3", [0]), ("temp,rate@50", None)])
+def test_over_a_lag_bank_the_kernel_reads_the_temperature_alone(inputs: str, read: list[int] | None) -> None:
+    """fogd-train over dynamic inputs: the kernel reads the sensor's temperature (or the fastest lag), the trend
+    every input; over the paper's inputs, the kernel reads them all (no kernel_columns in the file)."""
+    from fogd.calibration.training import TrainConfig, train
+    from fogd.core.inputs import parse_inputs
+    from fogd.core.runio import Run
+
+    rng = np.random.default_rng(5)
+    runs = []
+    for k in range(3):
+        t_s = np.arange(0.0, 8000.0, 2.0)
+        temp_c = 20.0 + 25.0 * np.sin(t_s / (900.0 + 300.0 * k) + k)
+        rate = 0.01 * temp_c + 2e-4 * (temp_c - 20.0) ** 2 + rng.normal(0.0, 0.01, t_s.size)
+        runs.append(Run(f"r{k}.csv", t_s, rate, temp_c + rng.normal(0.0, 0.01, t_s.size), 0.5, str(k), {}))
+    config = TrainConfig(inputs=parse_inputs(inputs), block_s=20.0,
+                         fit=FitOptions(particles=4, iterations=3, progress=False))  # fmt: skip
+    params = train(runs, config).fitted.params
+    assert params.get("kernel_columns") == read
+    width = len(parse_inputs(inputs)) if read is None else len(read)
+    assert all(len(sv) == width for sv in params["support_vectors"])

@@ -23,7 +23,7 @@ from fogd.core.frozen import (
 from fogd.core.inputs import parse_inputs
 
 INPUTS = {"paper": parse_inputs("temp,rate@5"), "lag bank": parse_inputs("temp,lags@30..3000/5")}
-METHODS = ("linear", "ls-poly", "rbf-nn", "svr", "svr-coil", "svr-trend-only")
+METHODS = ("linear", "ls-poly", "rbf-nn", "svr", "svr-coil", "svr-trend-only", "svr-some-inputs")
 
 
 def random_model(rng: np.random.Generator, method: str, inputs: str) -> FrozenModel:
@@ -31,6 +31,7 @@ def random_model(rng: np.random.Generator, method: str, inputs: str) -> FrozenMo
     d = len(specs)
     powers = rng.integers(0, 4, size=(int(rng.integers(1, 20)), d))
     centres = int(rng.integers(1, 60))
+    read = tuple(sorted(rng.choice(d, size=int(rng.integers(1, d + 1)), replace=False).tolist()))  # a kernel's inputs
     evaluator = {
         "linear": lambda: Linear(rng.normal(size=d), float(rng.normal())),
         "ls-poly": lambda: Polynomial(powers, rng.normal(size=len(powers)) * 10, float(rng.normal())),
@@ -40,6 +41,9 @@ def random_model(rng: np.random.Generator, method: str, inputs: str) -> FrozenMo
         "svr-coil": lambda: Svr(rng.normal(size=(centres, d)), rng.normal(size=centres) * 50, float(rng.uniform(1e-4, 2)),
                                 rng.normal(size=len(powers)) * 100, float(rng.normal()), powers),
         "svr-trend-only": lambda: Svr(np.zeros((0, d)), np.zeros(0), 0.5, rng.normal(size=len(powers)), 0.2, powers),
+        "svr-some-inputs": lambda: Svr(rng.normal(size=(centres, len(read))), rng.normal(size=centres) * 50,
+                                       float(rng.uniform(1e-4, 2)), rng.normal(size=len(powers)) * 100,
+                                       float(rng.normal()), powers, read),
     }[method]()  # fmt: skip
     low = 20.0 + rng.uniform(-15, -5, d)
     return FrozenModel(

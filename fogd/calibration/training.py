@@ -24,10 +24,10 @@ from fogd.core.inputs import (
     COARSE_DEFAULT_INPUTS_TEXT,
     DEFAULT_INPUTS_TEXT,
     MAX_RESOLUTION_C,
-    TEMP,
-    TEMP_RATE,
     InputSpec,
     dequantised,
+    dynamic_inputs,
+    kernel_columns,
     parse_inputs,
     shifted_columns,
     static_columns,
@@ -167,9 +167,11 @@ def _name_coil_temperature(fitted: Fitted, specs: tuple[InputSpec, ...]) -> None
 
 
 def options_for_inputs(options: FitOptions, specs: tuple[InputSpec, ...]) -> FitOptions:
-    """`options` with the column roles of these inputs: temperatures, static columns, columns clamped together."""
+    """`options` with the column roles of these inputs: temperatures, static columns, columns clamped together,
+    the inputs a kernel reads."""
     return dataclasses.replace(options, temperature_columns=temperature_columns(specs),
-                               static_columns=static_columns(specs), shifted_columns=shifted_columns(specs))  # fmt: skip
+                               static_columns=static_columns(specs), shifted_columns=shifted_columns(specs),
+                               kernel_columns=kernel_columns(specs))  # fmt: skip
 
 
 def domain_guard_document(data: TrainingSet, error: np.ndarray, fitted: Fitted, options: FitOptions,
@@ -188,7 +190,7 @@ def domain_guard_document(data: TrainingSet, error: np.ndarray, fitted: Fitted, 
     points = domain.thin((data.x - fitted.x_mean) / fitted.x_scale)
     samples = None if data.x_samples is None else (data.x_samples - fitted.x_mean) / fitted.x_scale
     fallback = {"method": "linear", "params": linear.params}
-    if all(spec.kind in (TEMP, TEMP_RATE) and spec.dequantise_c is None for spec in specs):
+    if not dynamic_inputs(specs):
         return {"points": points.tolist(), "threshold": domain.choose_threshold(points, samples), "fallback": fallback}
     low, high = domain.range_box(points, fitted.x_mean, fitted.x_scale, temperature_columns(specs))
     margin = domain.choose_range_margin(low, high, samples)

@@ -249,7 +249,9 @@ class RbfNetwork:
 class Svr:
     """g(x) = trend(x) + sum_i dual_coef_i exp(-gamma ||x - sv_i||^2) + intercept (paper eq. 12-13,
     gamma = 1/(2 sigma^2)). The trend is trend_coef . x, or over the monomials `trend_powers` of x when given
-    (fogd's polynomial trend); it is zero for the paper's plain SVR."""
+    (fogd's polynomial trend); it is zero for the paper's plain SVR. The kernel reads the inputs
+    `kernel_columns` only when given (over a lag bank, the sensor's temperature: the static curve the trend
+    leaves, not the thermal state), and every input otherwise."""
 
     support_vectors: np.ndarray
     dual_coef: np.ndarray
@@ -257,9 +259,11 @@ class Svr:
     trend_coef: np.ndarray
     intercept: float
     trend_powers: np.ndarray | None = None
+    kernel_columns: tuple[int, ...] | None = None
 
     def __call__(self, xs: np.ndarray) -> np.ndarray:
-        kernel = _gaussian_sum(xs, self.support_vectors, self.dual_coef, self.gamma)
+        kernel_xs = xs if self.kernel_columns is None else xs[:, list(self.kernel_columns)]
+        kernel = _gaussian_sum(kernel_xs, self.support_vectors, self.dual_coef, self.gamma)
         terms = xs if self.trend_powers is None else monomials(xs, self.trend_powers)
         return _row_dot(terms, self.trend_coef) + kernel + self.intercept
 
@@ -270,7 +274,9 @@ class Svr:
         object.__setattr__(self, "_trend_point", trend.point)
 
     def point(self, xs: Sequence[float]) -> float:
-        return self._trend_point(xs) + self._point(xs) + self.intercept
+        columns = self.kernel_columns
+        kernel = self._point(xs if columns is None else [xs[column] for column in columns])
+        return self._trend_point(xs) + kernel + self.intercept
 
 
 Evaluator = Callable[[np.ndarray], np.ndarray]
@@ -407,10 +413,12 @@ def build_evaluator(method: str, params: dict) -> Evaluator:
         powers = params.get("trend_powers")
         powers = None if powers is None else np.asarray(powers, dtype=np.int64)
         inputs = array("trend_coef").size if powers is None else powers.shape[1]
+        columns = params.get("kernel_columns")
+        columns = None if columns is None else tuple(int(column) for column in columns)
         return Svr(
-            array("support_vectors").reshape(-1, inputs),  # none at all when the trend explains everything
-            array("dual_coef"), float(params["gamma"]), array("trend_coef"),
-            float(params["intercept"]), powers,
+            array("support_vectors").reshape(-1, inputs if columns is None else len(columns)),  # none at all when
+            array("dual_coef"), float(params["gamma"]), array("trend_coef"),  # the trend explains everything
+            float(params["intercept"]), powers, columns,
         )  # fmt: skip
     raise ValueError(f"unknown method {method!r}")
 
@@ -418,24 +426,30 @@ def build_evaluator(method: str, params: dict) -> Evaluator:
 _STACK_ELEMENTS = 1 << 17  # rows x terms x inputs per block of StackedModels.predict: bounded memory
 
 
-def _stack_terms(model: FrozenModel) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, float]:
-    """A stackable model's (trend powers, trend coefs, kernel centres, kernel weights, gamma, intercept), in
-    its scaled space: every method evaluator is a polynomial trend (a linear one has the identity's powers:
-    x ** 1 is x and x ** 0 is 1.0 exactly) plus a Gaussian kernel sum plus an intercept."""
+def _stack_terms(model: FrozenModel) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, float, np.ndarray]:
+    """A stackable model's (trend powers, trend coefs, kernel centres, kernel weights, gamma, intercept, the
+    inputs its kernel reads), in its scaled space: every method evaluator is a polynomial trend (a linear one
+    has the identity's powers: x ** 1 is x and x ** 0 is 1.0 exactly) plus a Gaussian kernel sum plus an
+    intercept. The centres have every input; those the kernel does not read are 0 there."""
     evaluator, d = model.evaluator, len(model.inputs)
     identity = np.eye(d, dtype=np.int64)
-    no_centres, no_weights = np.empty((0, d)), np.empty(0)
+    no_centres, no_weights, every = np.empty((0, d)), np.empty(0), np.ones(d, dtype=bool)
     if isinstance(evaluator, Linear):
-        return identity, evaluator.coef, no_centres, no_weights, 0.0, evaluator.intercept
+        return identity, evaluator.coef, no_centres, no_weights, 0.0, evaluator.intercept, every
     if isinstance(evaluator, Polynomial):
-        return evaluator.powers, evaluator.coef, no_centres, no_weights, 0.0, evaluator.intercept
+        return evaluator.powers, evaluator.coef, no_centres, no_weights, 0.0, evaluator.intercept, every
     if isinstance(evaluator, RbfNetwork):
         return (np.empty((0, d), dtype=np.int64), np.empty(0), evaluator.centres, evaluator.coef,
-                0.5 / evaluator.width**2, evaluator.intercept)  # fmt: skip
+                0.5 / evaluator.width**2, evaluator.intercept, every)  # fmt: skip
     assert isinstance(evaluator, Svr)
     powers = identity if evaluator.trend_powers is None else evaluator.trend_powers
-    return (powers, evaluator.trend_coef, evaluator.support_vectors, evaluator.dual_coef, evaluator.gamma,
-            evaluator.intercept)  # fmt: skip
+    centres, read = evaluator.support_vectors, every
+    if evaluator.kernel_columns is not None:
+        read = np.zeros(d, dtype=bool)
+        read[list(evaluator.kernel_columns)] = True
+        centres = np.zeros((len(evaluator.support_vectors), d))
+        centres[:, read] = evaluator.support_vectors
+    return (powers, evaluator.trend_coef, centres, evaluator.dual_coef, evaluator.gamma, evaluator.intercept, read)
 
 
 class StackedModels:
@@ -496,6 +510,10 @@ class StackedModels:
         self._centres = np.concatenate([np.asarray(t[2], dtype=np.float64).reshape(-1, d) for t in terms]).T[:, None, :].copy()
         self._weights = np.concatenate([np.asarray(t[3], dtype=np.float64) for t in terms])
         self._neg_gamma = np.repeat([-t[4] for t in terms], k_sizes).astype(np.float64)
+        # a kernel that reads some inputs only: the others' differences are multiplied by 0 before squaring
+        # (x * 1.0 is x exactly, and adding 0.0 leaves a sum as it was: the very floats of the model alone)
+        reads = np.concatenate([np.repeat(t[6][None, :], size, axis=0) for t, size in zip(terms, k_sizes)]) if terms else None
+        self._reads = None if reads is None or reads.all() else reads.T[:, None, :].astype(np.float64)
         self._every_trend = len(self._t_cols) == count
         self._every_kernel = len(self._k_cols) == count
         self._block_rows = max(1, _STACK_ELEMENTS // max(1, (len(self._coef) + len(self._weights)) * max(1, d)))
@@ -626,6 +644,8 @@ class StackedModels:
     def _kernel(self, xs: np.ndarray) -> np.ndarray:
         difference = xs.repeat(self._k_sizes, axis=2)  # each centre's row reads its model's inputs
         difference -= self._centres
+        if self._reads is not None:
+            difference *= self._reads
         np.multiply(difference, difference, out=difference)
         squared = np.add.reduce(difference, axis=0)  # over the inputs, in column order
         squared *= self._neg_gamma

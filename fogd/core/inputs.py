@@ -225,6 +225,31 @@ def temperature_columns(specs: tuple[InputSpec, ...]) -> tuple[int, ...]:
     return tuple(i for i, spec in enumerate(specs) if spec.kind in (TEMP, TEMP_LAG))
 
 
+def dynamic_inputs(specs: tuple[InputSpec, ...]) -> bool:
+    """Whether the inputs carry a thermal state (a lag bank, a play operator, a dequantised estimate) beyond the
+    paper's temperature and eq. 16 rates."""
+    return any(spec.kind not in (TEMP, TEMP_RATE) or spec.dequantise_c is not None for spec in specs)
+
+
+def kernel_columns(specs: tuple[InputSpec, ...]) -> tuple[int, ...] | None:
+    """The inputs an SVR kernel over a trend reads: with dynamic inputs, the sensor's temperature (else the
+    fastest lag), where the static curve the trend leaves lives; None (every input) for the paper's inputs.
+
+    Over a lag bank a kernel of every input is fitted to the calibration runs' few trajectories through nine
+    dimensions, and a faster history reaches it off them: on tools/accuracy_table.py's held-out runs (seeds
+    1-5, both coils, fine sensor) it left the worst run at 1.21-2.55x the noise floor where the trend alone
+    left 1.11-1.66x, and the leave-one-run-out score preferred it in every case (by 1-10 %), so no score on
+    three calibration runs can tell. A kernel of the temperature alone left 1.11-1.66x (mean 1.43 against the
+    whole kernel's 1.53), and still follows a static curve that the trend's cubic cannot."""
+    if not dynamic_inputs(specs):
+        return None
+    temps = [i for i, spec in enumerate(specs) if spec.kind == TEMP]
+    if temps:
+        return tuple(temps)
+    lags = [i for i, spec in enumerate(specs) if spec.kind == TEMP_LAG]
+    return (min(lags, key=lambda i: specs[i].tau_s),) if lags else None
+
+
 STATIC_MAX_TAU_S = 1000.0  # temperatures that follow the coil: the sensor's and lags up to this time constant
 # fogd-train's default: the sensor's temperature and a bank of lags from half a minute to the housing's hour.
 # A bank reaching 10,000 s was as good with three calibration runs and far worse with two: the slowest lags

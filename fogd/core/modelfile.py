@@ -5,7 +5,10 @@ files by their first bytes, parses strict JSON (no NaN; deep nesting refused), a
 checks every array's shape and finiteness; anything else is a `ModelFileError` with a one-line message.
 
 Version 2 adds an optional `trend_powers` to pso-svr's params (the monomials of a polynomial trend under the
-SVR; without it the trend is linear, as in version 1). Version-1 files still load. Version 1 had grown
+SVR; without it the trend is linear, as in version 1). pso-svr's params may also carry `kernel_columns` (the
+inputs the kernel reads, in increasing order; its support vectors have those columns only; without it, every
+input): a fogd from before the key refuses such a file by name rather than evaluate the kernel on the wrong
+inputs. Version-1 files still load. Version 1 had grown
 compatibly (files written before still load; older fogd refuses the new parts by name):
 inputs may be `temp_lag_c` (with `tau_s`) and several `temp_rate_cps` windows, and an optional top-level
 `domain_guard` holds the joint-space guard of fogd.core.domain: `points` (calibration block rows in scaled units),
@@ -90,7 +93,7 @@ PARAM_KEYS = {
     "rbf-nn": {"centres", "width", "coef", "intercept"},
     "pso-svr": {"support_vectors", "dual_coef", "gamma", "trend_coef", "intercept"},
 }
-OPTIONAL_PARAM_KEYS = {"pso-svr": {"trend_powers"}}  # version 2: a polynomial trend under the SVR
+OPTIONAL_PARAM_KEYS = {"pso-svr": {"trend_powers", "kernel_columns"}}  # version 2: a polynomial trend under the SVR
 _BINARY_MAGIC = {
     b"\x80": "a Python pickle",
     b"PK": "a zip archive (numpy .npz or joblib?)",
@@ -555,7 +558,11 @@ class _Checker:
             out["coef"] = self.vector(value["coef"], "params.coef", len(out["centres"]))
         else:
             # an SVR may keep no support vector at all when its linear trend explains every block
-            out["support_vectors"] = self.matrix(value["support_vectors"], "params.support_vectors", d, allow_empty=True)
+            read = d
+            if "kernel_columns" in value:
+                out["kernel_columns"] = columns = self._columns(value["kernel_columns"], "params.kernel_columns", d)
+                read = len(columns)
+            out["support_vectors"] = self.matrix(value["support_vectors"], "params.support_vectors", read, allow_empty=True)
             out["dual_coef"] = self.vector(value["dual_coef"], "params.dual_coef", len(out["support_vectors"]))
             out["gamma"] = self.number(value["gamma"], "params.gamma", positive=True)
             if not MIN_SCALE <= out["gamma"] <= 1 / MIN_SCALE:
@@ -566,6 +573,13 @@ class _Checker:
             else:
                 out["trend_coef"] = self.vector(value["trend_coef"], "params.trend_coef", d)
         return out
+
+    def _columns(self, value: Any, where: str, d: int) -> list[int]:
+        """Input indices in increasing order, each once."""
+        if (not isinstance(value, list) or not value or any(type(item) is not int for item in value)
+                or value != sorted(set(value)) or value[0] < 0 or value[-1] >= d):  # fmt: skip
+            self.fail(where, f"must list input indices 0..{d - 1} in increasing order, each once")
+        return value
 
     def _powers(self, value: Any, where: str, d: int) -> np.ndarray:
         powers = self.matrix(value, where, d)

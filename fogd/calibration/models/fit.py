@@ -43,6 +43,7 @@ class FitOptions:
     static_columns: tuple[int, ...] = (0,)  # the temperatures that follow the coil (powers in the "poly" trend)
     shifted_columns: tuple[int, ...] = ()  # temperatures the domain clamp moves together (fogd.core.inputs.clamp_rows)
     trend_degree: int = 3  # the "coil" and "poly" trends' highest power
+    kernel_columns: tuple[int, ...] | None = None  # pso-svr over a trend: the inputs its kernel reads (None: every one)
     particles: int = 60
     iterations: int = 100
     c1: float = 2.0
@@ -122,7 +123,8 @@ def fit(method: str, X: np.ndarray, y: np.ndarray, groups: np.ndarray, options: 
             result = fit_pso_svr(
                 xs, ys, splits, y_scale,
                 fitness=options.fitness, trend=options.trend != "none", trend_powers=trend_terms(xs, ys, groups, options),
-                groups=groups, clamp=clamp, particles=options.particles, iterations=options.iterations,
+                groups=groups, clamp=clamp, kernel_columns=options.kernel_columns if options.trend != "none" else None,
+                particles=options.particles, iterations=options.iterations,
                 c1=options.c1, c2=options.c2, seed=options.seed, n_jobs=options.n_jobs, progress=options.progress,
             )
         cv_rmse_dph = y_scale * held_out_rmse(result.estimator, xs, ys, splits, groups, clamp)
