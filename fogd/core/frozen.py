@@ -507,13 +507,20 @@ class StackedModels:
         self._k_cols = np.flatnonzero(k_sizes)
         self._k_sizes = np.array(k_sizes, dtype=np.intp)
         self._k_starts = _starts(k_sizes)
-        self._centres = np.concatenate([np.asarray(t[2], dtype=np.float64).reshape(-1, d) for t in terms]).T[:, None, :].copy()
+        # the inputs some kernel reads (the sensor's temperature alone, over a lag bank): the differences are
+        # formed for those only, in column order, and an input no kernel reads adds nothing to any sum
+        reads = np.concatenate([np.repeat(t[6][None, :], size, axis=0) for t, size in zip(terms, k_sizes)])
+        read_any = reads.any(axis=0)
+        self._k_read = None if read_any.all() else np.flatnonzero(read_any)
+        reads = reads[:, read_any]
+        centres = np.concatenate([np.asarray(t[2], dtype=np.float64).reshape(-1, d) for t in terms])[:, read_any]
+        self._centres = centres.T[:, None, :].copy()
         self._weights = np.concatenate([np.asarray(t[3], dtype=np.float64) for t in terms])
         self._neg_gamma = np.repeat([-t[4] for t in terms], k_sizes).astype(np.float64)
-        # a kernel that reads some inputs only: the others' differences are multiplied by 0 before squaring
-        # (x * 1.0 is x exactly, and adding 0.0 leaves a sum as it was: the very floats of the model alone)
-        reads = np.concatenate([np.repeat(t[6][None, :], size, axis=0) for t, size in zip(terms, k_sizes)]) if terms else None
-        self._reads = None if reads is None or reads.all() else reads.T[:, None, :].astype(np.float64)
+        # kernels that read different inputs: the differences of the inputs a centre's kernel does not read are
+        # multiplied by 0 before squaring (x * 1.0 is x exactly, and adding 0.0 leaves a sum as it was: the very
+        # floats of the model alone)
+        self._reads = None if reads.all() else reads.T[:, None, :].astype(np.float64)
         self._every_trend = len(self._t_cols) == count
         self._every_kernel = len(self._k_cols) == count
         self._block_rows = max(1, _STACK_ELEMENTS // max(1, (len(self._coef) + len(self._weights)) * max(1, d)))
@@ -642,6 +649,8 @@ class StackedModels:
         return np.add.reduceat(monomials, self._t_starts, axis=1)
 
     def _kernel(self, xs: np.ndarray) -> np.ndarray:
+        if self._k_read is not None:
+            xs = xs[self._k_read]
         difference = xs.repeat(self._k_sizes, axis=2)  # each centre's row reads its model's inputs
         difference -= self._centres
         if self._reads is not None:
