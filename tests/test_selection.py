@@ -104,3 +104,17 @@ def test_nested_score_predicts_each_run_from_the_others_with_clamped_inputs():
     assert nested_rmse("linear", data, error, config.fit) == pytest.approx(expected, rel=1e-9)
     unclamped = held_out(clamp=False)
     assert abs(unclamped - expected) > 1e-6 * expected  # the clamp changed something
+
+
+def test_auto_on_a_whole_degree_sensor_scores_the_coarse_default():
+    """A KVH's whole degrees: the default input set becomes the coarse sensor's own (dequantised, fewer inputs
+    than the fine default) before the column roles are worked out (it raised an IndexError from the clamp)."""
+    def whole(run: Run) -> Run:
+        return dataclasses.replace(run, temp_c=np.round(run.temp_c))
+
+    runs = [whole(synthetic_run("up.csv", 1, True)), whole(synthetic_run("down.csv", 2, False))]
+    config = TrainConfig(block_s=100.0, fit=FitOptions(particles=4, iterations=2, progress=False))
+    chosen, candidates = select(runs, config, input_sets(None, 0.5, 0.0), families=("ls-poly", "pso-svr"))
+    assert candidates and all(spec.dequantise_c == 1.0 for c in candidates for spec in c.inputs)
+    assert {len(c.inputs) for c in candidates} == {6}  # temp,lags@30..3000/5, not the fine default's nine
+    assert chosen in candidates

@@ -116,9 +116,10 @@ def select(runs, config: TrainConfig, sets: list[tuple[InputSpec, ...]], familie
     )
     candidates: list[Candidate] = []
     for specs in sets:
+        set_config = for_sensor(runs, dataclasses.replace(config, inputs=specs))
+        specs = set_config.inputs  # a coarse sensor's: dequantised, and the default its own (fewer inputs)
         options = options_for_inputs(config.fit, specs)
-        set_config = for_sensor(runs, dataclasses.replace(config, inputs=specs, fit=options))
-        specs = set_config.inputs
+        set_config = dataclasses.replace(set_config, fit=options)
         prepared = prepare(runs, set_config, min_warmup_s=common_s)
         data, reference = prepared
         for method in families:
