@@ -215,7 +215,7 @@ def fit_pso_svr(
     }
     if trend_alone_dph is not None:
         hyperparameters["trend_alone_dph"] = trend_alone_dph  # the trend without a kernel, same folds as the swarm's best
-        hyperparameters["kernel"] = "rbf" if kernel else f"none (within {KERNEL_MARGIN:.0%} of the kernel's)"
+        hyperparameters["kernel"] = "rbf" if kernel else f"none (the trend alone scored within {KERNEL_MARGIN:.0%} of it)"
     if coil is not None:
         hyperparameters["coil_mix"] = coil.mix.tolist()
     return MethodFit(model, params, hyperparameters, result.history)
