@@ -30,6 +30,15 @@ def test_benchmark_runs_in_quick_mode(script, table):
     assert "Traceback" not in done.stderr
 
 
+def test_the_design_comparison_runs_its_single_thread_prototype():
+    """bench_daemon.py --design runs tools/bench_loop_prototype.py, which builds fogd's Daemon itself: it broke
+    unnoticed once when the Daemon's constructor changed."""
+    done = subprocess.run([sys.executable, "-W", "ignore", str(TOOLS / "bench_daemon.py"), "--design", "1", "--quick"],
+                          capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert "single-thread prototype" in done.stdout and "Traceback" not in done.stderr
+
+
 def test_bench_runs_the_sections_it_is_given():
     done = subprocess.run(
         [sys.executable, str(TOOLS / "bench.py"), "--quick", "--only", "point"], capture_output=True, text=True, timeout=600
