@@ -77,3 +77,23 @@ def test_a_port_that_goes_away_is_counted_once_and_the_reader_waits_for_it():
         reader.stop()
         if master >= 0:
             os.close(master)
+
+
+def test_bytes_read_before_the_reader_started_are_framed_first():
+    """What the start-up settings query read (frames on the way, and the unit's reply lines) is not lost: its
+    frames reach the ring before any frame read later, and the reply counts as garbage bytes."""
+    master, path, plain = pty_reader()
+    reply = b"?DR,200\r\n"
+    early = kvh_frame(0) + reply + kvh_frame(1)
+    reader = Reader(lambda: open_port(path, 921600), Lexer(KVH), Ring(64), port=plain.port, received=early)
+    try:
+        reader.start()
+        os.write(master, kvh_frame(2))
+        assert wait_for(lambda: len(reader.ring) == 3)
+        frames, _ = reader.ring.pop()
+        assert [frame.seq for frame in frames] == [0, 1, 2]
+        assert reader.counters.frames_in["imu"] == 3 and reader.counters.bytes_in == len(early) + len(kvh_frame(2))
+        assert reader.lexer.counters.garbage_bytes == len(reply)
+    finally:
+        reader.stop()
+        os.close(master)

@@ -288,16 +288,17 @@ def serve(settings: dict[str, Any], protocol: protocols.Protocol, model, *, on_d
     axis = AXES.index(settings["axis"])
     channels = channel_plan(as_models(model), protocol, axis)
     port = open_port(path, baud)
+    received = bytearray()  # what the settings query read: frames the reader frames first
     try:
         if settings.get("query_settings"):
-            unitquery.check_settings(unitquery.query_settings(port, path), settings, path)
+            unitquery.check_settings(unitquery.query_settings(port, path, received=received), settings, path)
         if sources is not None:  # not the demo, which discards its output unless told otherwise
             check_output(settings, out_given=sources.given("out"))
         sink = open_sink(settings["out"], baud)
     except BaseException:
         port.close()
         raise
-    reader = Reader(PortOpener(path, baud), Lexer(protocol), Ring(RING_CAPACITY), port=port)
+    reader = Reader(PortOpener(path, baud), Lexer(protocol), Ring(RING_CAPACITY), port=port, received=bytes(received))
     daemon = Daemon(
         reader=reader,
         writer=Writer(sink),

@@ -69,7 +69,10 @@ class ReaderCounters:
 class Reader:
     """Reads `open_port()`'s port into `ring` on its own thread until `stop()`; survives the port going away."""
 
-    def __init__(self, open_port: Callable[[], serial.Serial], lexer: Lexer, ring: Ring, *, port: serial.Serial | None = None) -> None:
+    def __init__(self, open_port: Callable[[], serial.Serial], lexer: Lexer, ring: Ring, *, port: serial.Serial | None = None,
+                 received: bytes = b"") -> None:  # fmt: skip
+        """`received`: bytes already read from `port` (fogd.serving.unitquery's), framed before anything else."""
+        self._received = received
         self._open_port = open_port
         self.lexer = lexer
         self.ring = ring
@@ -103,6 +106,9 @@ class Reader:
 
     def _run(self) -> None:
         try:
+            if self._received:
+                self._frame(self._received, time.monotonic())
+                self._received = b""
             poller: select.poll | None = None
             while not self._stopping.is_set():
                 if self.port is None:

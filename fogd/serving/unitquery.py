@@ -1,7 +1,8 @@
 """Reading a KVH unit's output settings at start (`query_settings: true`), as public KVH drivers do before
 streaming: `=CONFIG,1` (the unit stops streaming and answers), one query per setting (`?ROTFMT`, `?DR`, ...),
 then `=CONFIG,0` (streaming again). The replies are found among whatever frames were already on the way and
-parsed by fogd.protocols.kvh; a setting the unit reports differently from the config stops fogd in one line
+parsed by fogd.protocols.kvh (those frames are not lost: every byte read is handed to the reader, which frames
+it before anything else, the reply lines counted as garbage bytes); a setting the unit reports differently from the config stops fogd in one line
 (ConfigError, exit 78), since every value decoded under the wrong setting would be wrong.
 """
 
@@ -31,12 +32,15 @@ class Port(Protocol):
     def read(self, size: int) -> bytes: ...
 
 
-def query_settings(port: Port, path: str, timeout_s: float = REPLY_TIMEOUT_S) -> dict[str, object]:
+def query_settings(port: Port, path: str, timeout_s: float = REPLY_TIMEOUT_S,
+                   received: bytearray | None = None) -> dict[str, object]:  # fmt: skip
     """The unit's settings as kvh-a protocol options (rotfmt, angle_unit, linfmt, lin_unit, temp_unit,
-    rate_hz); DeviceError (one line) when it does not answer every query within `timeout_s`."""
+    rate_hz); DeviceError (one line) when it does not answer every query within `timeout_s`. Every byte read
+    meanwhile (the frames already on the way, and the replies) is appended to `received`, for the reader to
+    frame first: those frames are the unit's too, sent under the settings just checked."""
     try:
         port.write(ENTER_CONFIG + b"".join(kvh.query(name) for name in kvh.SETTING_QUERIES))
-        replies = _replies(port, timeout_s)
+        replies = _replies(port, timeout_s, received)
         port.write(LEAVE_CONFIG)
     except OSError as error:
         raise DeviceError(f"{path}: cannot query the unit's settings: {error}") from None
@@ -47,14 +51,17 @@ def query_settings(port: Port, path: str, timeout_s: float = REPLY_TIMEOUT_S) ->
     return kvh.settings_from_replies(list(replies.values()))
 
 
-def _replies(port: Port, timeout_s: float) -> dict[str, bytes]:
+def _replies(port: Port, timeout_s: float, received: bytearray | None = None) -> dict[str, bytes]:
     """The first reply line to each query, found in the bytes the port delivers (frames sent before the
     unit entered configuration mode come first)."""
     replies: dict[str, bytes] = {}
     data = b""
     deadline = time.monotonic() + timeout_s
     while len(replies) < len(kvh.SETTING_QUERIES) and time.monotonic() < deadline and len(data) < MAX_BYTES:
-        data += port.read(4096)
+        chunk = port.read(4096)
+        data += chunk
+        if received is not None:
+            received += chunk
         for match in _REPLY.finditer(data):
             line = match.group(0)
             replies.setdefault(line.split(b",", 1)[0].decode("ascii"), line)
