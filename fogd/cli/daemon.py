@@ -18,7 +18,7 @@ import threading
 from pathlib import Path
 from typing import Any, Sequence
 
-from fogd import __version__, protocols
+from fogd import protocols
 from fogd.cli.common import ArgumentParser, run
 from fogd.core import modelfile
 from fogd.core.channels import ChannelModels
