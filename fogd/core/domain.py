@@ -106,7 +106,8 @@ def choose_range_margin(low: np.ndarray, high: np.ndarray, samples: np.ndarray |
     largest = 0.0
     if samples is not None and len(samples):
         excursion = range_excursion(samples, low, high)
-        largest = float(np.quantile(excursion[np.isfinite(excursion)], THRESHOLD_QUANTILE)) if np.isfinite(excursion).any() else 0.0
+        finite = excursion[np.isfinite(excursion)]
+        largest = float(np.quantile(finite, THRESHOLD_QUANTILE)) if finite.size else 0.0
     return max(factor * largest, MIN_RANGE_MARGIN)
 
 

@@ -11,11 +11,11 @@ fitness "cv" is the RMSE on held-out folds. Both are reported in deg/h.
 
 Over a trend, the kernel must earn its place: when the trend alone (the swarm's best settings with no
 kernel at all) scores within `KERNEL_MARGIN` of the swarm's best on the same held-out folds, the model is the
-trend alone, with no support vectors (as `--method auto` takes another family only if it wins by 2 %). On the
-accuracy table's held-out runs the kernel over the coil trend bought nothing: the trend alone left as little
-or less drift on 6 of 7 (coil, sensor, seed) cases, e.g. worst run 1.11 against 1.21 (lumped, fine, seed 1)
-and 13.48 against 13.92 (lumped, whole degrees), where the swarm's kernel had 5-549 support vectors to
-serve on every sample of every channel. The paper's recipe (`--fitness train`, no trend) keeps its kernel.
+trend alone, with no support vectors (as `--method auto` takes another family only if it wins by 2 %): a
+kernel that scores no better than the trend is support vectors to serve on every sample of every channel
+for nothing. Over a lag bank the kernel reads the temperature alone (`kernel_columns`,
+fogd.core.inputs.kernel_columns, which says why). The paper's recipe (`--fitness train`, no trend) keeps
+its kernel.
 
 The SVR can sit on a least-squares trend, refitted on every training fold, and then models only what the
 trend leaves: `trend="coil"` (fogd's default, fogd.calibration.models.coil: the inputs linear plus the static curve at
@@ -192,11 +192,11 @@ def fit_pso_svr(
     trend_coef = model.trend_.coef_ if trend else np.zeros(xs.shape[1] if trend_powers is None else len(trend_powers))
     if isinstance(trend_powers, CoilTerms):  # frozen as the polynomial it is: the model file does not change
         trend_powers, trend_coef = trend_powers.monomial_form(trend_coef)
-    gamma = 0.5 / sigma**2
+    gamma = 0.5 / sigma**2  # the SVR's own (TrendSvr passes it as is)
     params = {
         "support_vectors": model.svr_.support_vectors_.tolist() if kernel else [],
         "dual_coef": model.svr_.dual_coef_[0].tolist() if kernel else [],
-        "gamma": float(model.svr_.gamma) if kernel else gamma,
+        "gamma": gamma,
         "trend_coef": trend_coef.tolist(),
         "intercept": (float(model.svr_.intercept_[0]) if kernel else 0.0) + (model.trend_.intercept_ if trend else 0.0),
     }
@@ -209,7 +209,7 @@ def fit_pso_svr(
         "epsilon": epsilon,
         "epsilon_dph": epsilon * y_scale,
         "sigma": sigma,
-        "gamma": float(model.svr_.gamma) if kernel else gamma,
+        "gamma": gamma,
         "trend": trend_label,
         "support_vectors": len(params["dual_coef"]),
     }
