@@ -23,7 +23,8 @@ and `+pre:TAU` after any of them puts a causal first-order lag of TAU s in front
 same lag of the fit temperature, so its delay is compensated). `--ridge` adds a ridge on the trend's scaled
 coefficients (`loro`: its strength chosen by leave-one-calibration-run-out drift about each run's mean);
 `--play WIDTH[@TAU]` adds a play operator (fogd.core.play) of a TAU s lag of the temperature as an input,
-`--target truth` fits the calibration runs' true thermal error instead of the measured rate (no gyro noise)
+`--target truth` fits the calibration runs' true thermal error instead of the measured rate (no gyro noise),
+`--calibration-copies N` records each calibration programme N times (the first as the accuracy table does)
 and `--hysteresis-dph 0` simulates the gyro without its play hysteresis. Besides each case's figures: the
 trend's drift RMSE on the calibration blocks (fit) and left out run by run (loro).
 
@@ -258,6 +259,8 @@ def main() -> None:
     parser.add_argument("--target", choices=("rate", "truth"), default="rate",
                         help="fit the calibration runs' measured rate, or their true thermal error (no gyro noise)")
     parser.add_argument("--ridge", default="0", help="ridge strength on the scaled trend, or 'loro'")
+    parser.add_argument("--calibration-copies", type=int, default=1, metavar="N",
+                        help="record each calibration programme N times (other noise seeds): what more calibration buys")
     args = parser.parse_args()
     specs = parse_inputs(args.inputs)
     cases = args.case or ["read/read", "true/true", "true/read"]
@@ -269,7 +272,8 @@ def main() -> None:
             extra = {} if args.hysteresis_dph is None else {"hysteresis_dph": args.hysteresis_dph}
             params = params_for("navigation", thermal, sensor_resolution_c=args.resolution_c,
                                 sensor_rate_hz=args.sensor_hz, **extra)  # fmt: skip
-            calibration = [SimRun(name, seed + i, args.rate_hz, params) for i, name in enumerate(CALIBRATION)]
+            calibration = [SimRun(name, seed + i + 1000 * copy, args.rate_hz, params)  # copy 0: the accuracy table's
+                           for copy in range(args.calibration_copies) for i, name in enumerate(CALIBRATION)]
             held_out = [SimRun(name, seed + 100 + i, args.rate_hz, params) for i, name in enumerate(HELD_OUT)]
             for case, play in ((case, play) for case in cases for play in args.play or [None]):
                 fit_spec, _, serve_spec = case.partition("/")

@@ -236,12 +236,10 @@ def kernel_columns(specs: tuple[InputSpec, ...]) -> tuple[int, ...] | None:
     fastest lag), where the static curve the trend leaves lives; None (every input) for the paper's inputs.
 
     Over a lag bank a kernel of every input is fitted to the calibration runs' few trajectories through nine
-    dimensions, and a faster history reaches it off them: on tools/accuracy_table.py's held-out runs (seeds
-    1-5, both coils, fine sensor) it left the worst run at 1.21-2.55x the noise floor where the trend alone
-    left 1.11-1.66x, and the leave-one-run-out score preferred it in every case (by 1-6 %; by 6-10 % with
-    whole degrees, where it was worse on every held-out case too), so no score on three calibration runs can
-    tell. A kernel of the temperature alone left 1.11-1.66x (mean 1.43 against the whole kernel's 1.53), and
-    still follows a static curve that the trend's cubic cannot."""
+    dimensions, and a faster history reaches it off them: on tools/accuracy_table.py's held-out runs (--quick,
+    seeds 1-5, both coils, fine sensor) it left the worst run at 1.21-2.55x the noise floor, a kernel of the
+    temperature alone 1.11-1.66x (README, "Methods"); the swarm's leave-one-run-out score could not tell
+    them apart. Over the temperature the kernel still follows a static curve that the trend's cubic cannot."""
     if not dynamic_inputs(specs):
         return None
     temps = [i for i, spec in enumerate(specs) if spec.kind == TEMP]
