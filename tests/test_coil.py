@@ -1,4 +1,4 @@
-"""The coil-temperature trend: its polynomial form is the same function, and variable projection finds the
+"""The coil-temperature trend: its frozen form is the same function, and variable projection finds the
 mix of temperatures that carries the static curve, whatever each run's offset."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fogd.calibration.models.coil import MIX_FLOOR, CoilTerms, fit_mix
-from fogd.core.frozen import monomials
+from fogd.core.frozen import Svr
 
 unit = st.floats(0.0, 1.0, allow_nan=False)
 
@@ -17,14 +17,19 @@ unit = st.floats(0.0, 1.0, allow_nan=False)
 @given(weights=st.lists(unit, min_size=3, max_size=3).filter(lambda w: sum(w) > 0.1),
        coef=st.lists(st.floats(-5.0, 5.0), min_size=6, max_size=6), degree=st.integers(2, 3),
        seed=st.integers(0, 2**16))  # fmt: skip
-def test_monomial_form_is_the_same_function(weights: list[float], coef: list[float], degree: int, seed: int) -> None:
+def test_the_frozen_mix_form_is_the_same_function(weights: list[float], coef: list[float], degree: int, seed: int) -> None:
+    """The trend as the model file stores it (the mix, monomials over the inputs and q) is the fitted one, on
+    the array path and one row at a time alike."""
     mix = np.array(weights + [0.0]) / sum(weights)  # the fourth input (a rate) is never in the mix
     terms = CoilTerms(mix, degree)
     coef_ = np.array(coef[: terms.columns])  # four inputs, then q**2 .. q**degree
     xs = np.random.default_rng(seed).normal(0.0, 2.0, (50, 4))
-    powers, poly_coef = terms.monomial_form(coef_)
-    assert powers.shape[1] == 4 and np.all(powers[:, 3][4:] == 0)
-    np.testing.assert_allclose(monomials(xs, powers) @ poly_coef, terms(xs) @ coef_, rtol=1e-9, atol=1e-9)
+    powers = terms.mix_form()
+    assert powers.shape == (terms.columns, 5)
+    svr = Svr(np.empty((0, 4)), np.empty(0), 1.0, coef_, 0.25, powers, None, mix)
+    want = terms(xs) @ coef_ + 0.25
+    np.testing.assert_allclose(svr(xs), want, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose([svr.point(row) for row in xs.tolist()], want, rtol=1e-9, atol=1e-9)
 
 
 def test_fit_mix_recovers_the_coil_temperature_despite_run_offsets() -> None:

@@ -206,6 +206,37 @@ def test_polynomial_trend_is_version_2_and_checked():
         modelfile.from_document(doc)
 
 
+def test_a_coil_trend_reads_the_mix_of_the_inputs_and_is_checked():
+    """`trend_mix`: the trend's monomials read q = mix . xs after the inputs (a hand-written formula)."""
+    doc = make_doc("pso-svr")
+    doc["params"]["trend_mix"] = [0.75, 0.25]
+    doc["params"]["trend_powers"] = [[1, 0, 0], [0, 1, 0], [0, 0, 2], [0, 0, 3]]
+    doc["params"]["trend_coef"] = [0.1, -0.2, 0.03, -0.004]
+    model = modelfile.from_document(doc)
+    x = np.array([[20.0, 0.001]])
+    xs = (x - model.x_mean) / model.x_scale
+    q = 0.75 * xs[0, 0] + 0.25 * xs[0, 1]
+    trend = 0.1 * xs[0, 0] - 0.2 * xs[0, 1] + 0.03 * q**2 - 0.004 * q**3
+    without = json.loads(json.dumps(doc))
+    for key in ("trend_mix", "trend_powers"):
+        del without["params"][key]
+    without["params"]["trend_coef"] = [0.0, 0.0]
+    kernel = modelfile.from_document(without).predict(x)[0][0]
+    assert model.predict(x)[0][0] == pytest.approx(kernel + model.y_scale * trend, rel=1e-12)
+    assert model.predict_one((20.0, 0.001))[0] == pytest.approx(kernel + model.y_scale * trend, rel=1e-12)
+    bad = json.loads(json.dumps(doc))
+    bad["params"]["trend_powers"] = [[1, 0], [0, 1]]  # q is a column of its own
+    with pytest.raises(ModelFileError, match="trend_powers"):
+        modelfile.from_document(bad)
+    bad = json.loads(json.dumps(doc))
+    bad["params"]["trend_mix"] = [0.75]
+    with pytest.raises(ModelFileError, match="trend_mix"):
+        modelfile.from_document(bad)
+    del doc["params"]["trend_powers"]
+    with pytest.raises(ModelFileError, match="trend_mix.*needs params.trend_powers"):
+        modelfile.from_document(doc)
+
+
 def test_save_refuses_an_invalid_document_and_writes_nothing(tmp_path):
     doc = make_doc("linear")
     doc["params"]["coef"] = [1.0]

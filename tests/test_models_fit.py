@@ -41,7 +41,7 @@ def test_frozen_params_reproduce_the_estimator(method: str) -> None:
 
 @pytest.mark.parametrize("trend", ["coil", "poly", "linear"])
 def test_frozen_svr_with_its_trend_reproduces_the_estimator(trend: str) -> None:
-    """The model file's trend (monomials and coefficients, offsets per run folded into the intercept) gives the
+    """The model file's trend (monomials and coefficients, the coil trend's mix, offsets per run folded into the intercept) gives the
     scikit-learn estimator's predictions."""
     x, y, groups = chamber_rows(80, seed=12, runs=3)
     x = np.c_[x, x[:, 0] + np.random.default_rng(4).normal(0.0, 3.0, len(x))]  # a second temperature input
@@ -49,6 +49,9 @@ def test_frozen_svr_with_its_trend_reproduces_the_estimator(trend: str) -> None:
                          progress=False)  # fmt: skip
     fitted = fit("pso-svr", x, y, groups, options)
     assert ("trend_powers" in fitted.params) == (trend in ("coil", "poly"))
+    assert ("trend_mix" in fitted.params) == (trend == "coil")  # the coil trend as fitted: q's powers, not expanded
+    if trend == "coil":
+        assert len(fitted.params["trend_coef"]) == x.shape[1] + 2
     assert fitted.hyperparameters["trend"] == trend
     xs = (x - fitted.x_mean) / fitted.x_scale
     np.testing.assert_allclose(build_evaluator("pso-svr", fitted.params)(xs), fitted.estimator.predict(xs), rtol=1e-9, atol=1e-9)

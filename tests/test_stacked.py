@@ -23,7 +23,7 @@ from fogd.core.frozen import (
 from fogd.core.inputs import parse_inputs
 
 INPUTS = {"paper": parse_inputs("temp,rate@5"), "lag bank": parse_inputs("temp,lags@30..3000/5")}
-METHODS = ("linear", "ls-poly", "rbf-nn", "svr", "svr-coil", "svr-trend-only", "svr-some-inputs")
+METHODS = ("linear", "ls-poly", "rbf-nn", "svr", "svr-coil", "svr-trend-only", "svr-some-inputs", "svr-mix")
 
 
 def random_model(rng: np.random.Generator, method: str, inputs: str) -> FrozenModel:
@@ -44,6 +44,10 @@ def random_model(rng: np.random.Generator, method: str, inputs: str) -> FrozenMo
         "svr-some-inputs": lambda: Svr(rng.normal(size=(centres, len(read))), rng.normal(size=centres) * 50,
                                        float(rng.uniform(1e-4, 2)), rng.normal(size=len(powers)) * 100,
                                        float(rng.normal()), powers, read),
+        # as fogd-train writes its default: the kernel on the temperature, the trend over the inputs and q
+        "svr-mix": lambda: Svr(rng.normal(size=(centres, 1)), rng.normal(size=centres) * 50, float(rng.uniform(1e-4, 2)),
+                               rng.normal(size=d + 2) * 100, float(rng.normal()), mix_powers(d), (0,),
+                               rng.dirichlet(np.ones(d))),
     }[method]()  # fmt: skip
     low = 20.0 + rng.uniform(-15, -5, d)
     return FrozenModel(
@@ -51,6 +55,11 @@ def random_model(rng: np.random.Generator, method: str, inputs: str) -> FrozenMo
         y_mean=float(rng.normal()), y_scale=float(rng.uniform(0.01, 1)), domain_min=low, domain_max=low + rng.uniform(10, 30, d),
         evaluator=evaluator,
     )  # fmt: skip
+
+
+def mix_powers(d: int) -> np.ndarray:
+    """The coil trend's monomials over d inputs and q: each input, then q ** 2 and q ** 3."""
+    return np.vstack((np.eye(d, d + 1, dtype=np.int64), [[0] * d + [2], [0] * d + [3]]))
 
 
 def input_rows(rng: np.random.Generator, d: int, n: int) -> np.ndarray:

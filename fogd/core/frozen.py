@@ -249,9 +249,12 @@ class RbfNetwork:
 class Svr:
     """g(x) = trend(x) + sum_i dual_coef_i exp(-gamma ||x - sv_i||^2) + intercept (paper eq. 12-13,
     gamma = 1/(2 sigma^2)). The trend is trend_coef . x, or over the monomials `trend_powers` of x when given
-    (fogd's polynomial trend); it is zero for the paper's plain SVR. The kernel reads the inputs
-    `kernel_columns` only when given (over a lag bank, the sensor's temperature: the static curve the trend
-    leaves, not the thermal state), and every input otherwise."""
+    (fogd's polynomial trend); it is zero for the paper's plain SVR. With `trend_mix` the monomials read one
+    more input after the model's own, the coil temperature q = trend_mix . x (fogd.calibration.models.coil):
+    the default trend is every input linear plus powers of q, 11 terms over a nine-input lag bank where its
+    expansion into monomials of the inputs has 165. The kernel reads the inputs `kernel_columns` only when
+    given (over a lag bank, the sensor's temperature: the static curve the trend leaves, not the thermal
+    state), and every input otherwise."""
 
     support_vectors: np.ndarray
     dual_coef: np.ndarray
@@ -260,11 +263,17 @@ class Svr:
     intercept: float
     trend_powers: np.ndarray | None = None
     kernel_columns: tuple[int, ...] | None = None
+    trend_mix: np.ndarray | None = None
 
     def __call__(self, xs: np.ndarray) -> np.ndarray:
         kernel_xs = xs if self.kernel_columns is None else xs[:, list(self.kernel_columns)]
         kernel = _gaussian_sum(kernel_xs, self.support_vectors, self.dual_coef, self.gamma)
-        terms = xs if self.trend_powers is None else monomials(xs, self.trend_powers)
+        if self.trend_powers is None:
+            terms = xs
+        elif self.trend_mix is None:
+            terms = monomials(xs, self.trend_powers)
+        else:
+            terms = monomials(np.column_stack((xs, _row_dot(xs, self.trend_mix))), self.trend_powers)
         return _row_dot(terms, self.trend_coef) + kernel + self.intercept
 
     def __post_init__(self) -> None:
@@ -272,11 +281,13 @@ class Svr:
         trend = (Linear(self.trend_coef, 0.0) if self.trend_powers is None
                  else Polynomial(self.trend_powers, self.trend_coef, 0.0))  # fmt: skip
         object.__setattr__(self, "_trend_point", trend.point)
+        object.__setattr__(self, "_mix", None if self.trend_mix is None else _floats(self.trend_mix))
 
     def point(self, xs: Sequence[float]) -> float:
-        columns = self.kernel_columns
+        columns, mix = self.kernel_columns, self._mix
         kernel = self._point(xs if columns is None else [xs[column] for column in columns])
-        return self._trend_point(xs) + kernel + self.intercept
+        trend = self._trend_point(xs) if mix is None else self._trend_point([*xs, _point_dot(xs, mix)])
+        return trend + kernel + self.intercept
 
 
 Evaluator = Callable[[np.ndarray], np.ndarray]
@@ -412,13 +423,14 @@ def build_evaluator(method: str, params: dict) -> Evaluator:
     if method == "pso-svr":
         powers = params.get("trend_powers")
         powers = None if powers is None else np.asarray(powers, dtype=np.int64)
-        inputs = array("trend_coef").size if powers is None else powers.shape[1]
+        mix = None if params.get("trend_mix") is None else array("trend_mix")
+        inputs = array("trend_coef").size if powers is None else powers.shape[1] - (mix is not None)
         columns = params.get("kernel_columns")
         columns = None if columns is None else tuple(int(column) for column in columns)
         return Svr(
             array("support_vectors").reshape(-1, inputs if columns is None else len(columns)),  # none at all when
             array("dual_coef"), float(params["gamma"]), array("trend_coef"),  # the trend explains everything
-            float(params["intercept"]), powers, columns,
+            float(params["intercept"]), powers, columns, mix,
         )  # fmt: skip
     raise ValueError(f"unknown method {method!r}")
 
@@ -426,21 +438,23 @@ def build_evaluator(method: str, params: dict) -> Evaluator:
 _STACK_ELEMENTS = 1 << 17  # rows x terms x inputs per block of StackedModels.predict: bounded memory
 
 
-def _stack_terms(model: FrozenModel) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, float, np.ndarray]:
+def _stack_terms(model: FrozenModel) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, float, np.ndarray,
+                                               np.ndarray | None]:  # fmt: skip
     """A stackable model's (trend powers, trend coefs, kernel centres, kernel weights, gamma, intercept, the
-    inputs its kernel reads), in its scaled space: every method evaluator is a polynomial trend (a linear one
-    has the identity's powers: x ** 1 is x and x ** 0 is 1.0 exactly) plus a Gaussian kernel sum plus an
-    intercept. The centres have every input; those the kernel does not read are 0 there."""
+    inputs its kernel reads, the trend's coil mix or None), in its scaled space: every method evaluator is a
+    polynomial trend (a linear one has the identity's powers: x ** 1 is x and x ** 0 is 1.0 exactly; a coil
+    trend's powers have one more column, q) plus a Gaussian kernel sum plus an intercept. The centres have
+    every input; those the kernel does not read are 0 there."""
     evaluator, d = model.evaluator, len(model.inputs)
     identity = np.eye(d, dtype=np.int64)
     no_centres, no_weights, every = np.empty((0, d)), np.empty(0), np.ones(d, dtype=bool)
     if isinstance(evaluator, Linear):
-        return identity, evaluator.coef, no_centres, no_weights, 0.0, evaluator.intercept, every
+        return identity, evaluator.coef, no_centres, no_weights, 0.0, evaluator.intercept, every, None
     if isinstance(evaluator, Polynomial):
-        return evaluator.powers, evaluator.coef, no_centres, no_weights, 0.0, evaluator.intercept, every
+        return evaluator.powers, evaluator.coef, no_centres, no_weights, 0.0, evaluator.intercept, every, None
     if isinstance(evaluator, RbfNetwork):
         return (np.empty((0, d), dtype=np.int64), np.empty(0), evaluator.centres, evaluator.coef,
-                0.5 / evaluator.width**2, evaluator.intercept, every)  # fmt: skip
+                0.5 / evaluator.width**2, evaluator.intercept, every, None)  # fmt: skip
     assert isinstance(evaluator, Svr)
     powers = identity if evaluator.trend_powers is None else evaluator.trend_powers
     centres, read = evaluator.support_vectors, every
@@ -449,7 +463,8 @@ def _stack_terms(model: FrozenModel) -> tuple[np.ndarray, np.ndarray, np.ndarray
         read[list(evaluator.kernel_columns)] = True
         centres = np.zeros((len(evaluator.support_vectors), d))
         centres[:, read] = evaluator.support_vectors
-    return (powers, evaluator.trend_coef, centres, evaluator.dual_coef, evaluator.gamma, evaluator.intercept, read)
+    return (powers, evaluator.trend_coef, centres, evaluator.dual_coef, evaluator.gamma, evaluator.intercept, read,
+            evaluator.trend_mix)  # fmt: skip
 
 
 class StackedModels:
@@ -489,16 +504,24 @@ class StackedModels:
         # trend: every channel's monomials; factor j of a monomial is x_j ** p read from a table of each
         # channel's scaled input to the powers 0..max (the same np.power of the same floats, computed once per
         # (input, channel, power) instead of once per monomial), then multiplied over the inputs in column order
-        powers = [np.asarray(t[0], dtype=np.int64).reshape(-1, d) for t in terms]
+        # coil trends read one more input, q = mix . x (a channel with none: q = 0 and no power of it)
+        coil = any(t[7] is not None for t in terms)
+        d_t = d + coil
+        self._mix = (np.stack([np.zeros(d) if t[7] is None else np.asarray(t[7], dtype=np.float64) for t in terms],
+                              axis=1)[:, None, :] if coil else None)  # fmt: skip
+        powers = [np.asarray(t[0], dtype=np.int64).reshape(-1, d + (t[7] is not None)) for t in terms]
+        if coil:
+            powers = [p if t[7] is not None else np.column_stack((p, np.zeros(len(p), dtype=np.int64)))
+                      for p, t in zip(powers, terms)]  # fmt: skip
         t_sizes = [len(t[1]) for t in terms]
         self._t_cols = np.flatnonzero(t_sizes)
         self._t_starts = _starts(t_sizes)
         top = max((int(p.max()) for p in powers if p.size), default=0)
         self._exponents = np.arange(top + 1, dtype=np.float64)
         owner = np.repeat(np.arange(count), t_sizes)
-        every = np.concatenate(powers) if powers else np.empty((0, d), dtype=np.int64)
+        every = np.concatenate(powers) if powers else np.empty((0, d_t), dtype=np.int64)
         # index into the table flattened per row as (input, channel, power)
-        self._t_index = (np.arange(d)[:, None] * (count * (top + 1)) + owner[None, :] * (top + 1) + every.T).ravel()
+        self._t_index = (np.arange(d_t)[:, None] * (count * (top + 1)) + owner[None, :] * (top + 1) + every.T).ravel()
         self._t_terms = len(owner)
         self._coef = np.concatenate([np.asarray(t[1], dtype=np.float64) for t in terms])
         # kernel: the centres of every channel, each reading its channel's scaled inputs, with their channel's
@@ -640,6 +663,8 @@ class StackedModels:
         return g, clamped
 
     def _trend(self, xs: np.ndarray) -> np.ndarray:
+        if self._mix is not None:  # the coil temperature, summed over the inputs in column order
+            xs = np.concatenate((xs, np.add.reduce(xs * self._mix, axis=0)[None]), axis=0)
         inputs, rows, models = xs.shape
         # per row, (input, model, power) flattened
         table = np.power(xs.transpose(1, 0, 2)[..., None], self._exponents).reshape(rows, inputs * models * len(self._exponents))

@@ -8,7 +8,10 @@ Version 2 adds an optional `trend_powers` to pso-svr's params (the monomials of 
 SVR; without it the trend is linear, as in version 1). pso-svr's params may also carry `kernel_columns` (the
 inputs the kernel reads, in increasing order; its support vectors have those columns only; without it, every
 input): a fogd from before the key refuses such a file by name rather than evaluate the kernel on the wrong
-inputs. Version-1 files still load. Version 1 had grown
+inputs. They may carry `trend_mix` too (one weight per input: the trend's monomials then read one more input
+after the model's own, the coil temperature q = trend_mix . x, so the default trend is stored as the eleven
+terms it is fitted as rather than their 165-monomial expansion); an older fogd refuses it by name. Version-1
+files still load. Version 1 had grown
 compatibly (files written before still load; older fogd refuses the new parts by name):
 inputs may be `temp_lag_c` (with `tau_s`) and several `temp_rate_cps` windows, and an optional top-level
 `domain_guard` holds the joint-space guard of fogd.core.domain: `points` (calibration block rows in scaled units),
@@ -93,7 +96,7 @@ PARAM_KEYS = {
     "rbf-nn": {"centres", "width", "coef", "intercept"},
     "pso-svr": {"support_vectors", "dual_coef", "gamma", "trend_coef", "intercept"},
 }
-OPTIONAL_PARAM_KEYS = {"pso-svr": {"trend_powers", "kernel_columns"}}  # version 2: a polynomial trend under the SVR
+OPTIONAL_PARAM_KEYS = {"pso-svr": {"trend_powers", "kernel_columns", "trend_mix"}}  # version 2: a polynomial trend under the SVR
 _BINARY_MAGIC = {
     b"\x80": "a Python pickle",
     b"PK": "a zip archive (numpy .npz or joblib?)",
@@ -567,8 +570,13 @@ class _Checker:
             out["gamma"] = self.number(value["gamma"], "params.gamma", positive=True)
             if not MIN_SCALE <= out["gamma"] <= 1 / MIN_SCALE:
                 self.fail("params.gamma", f"is {out['gamma']!r}; it must be within {MIN_SCALE:g}..{1 / MIN_SCALE:g}")
+            if "trend_mix" in value:  # the coil temperature q = mix . x, read by the trend's monomials after x
+                if "trend_powers" not in value:
+                    self.fail("params.trend_mix", "needs params.trend_powers (the monomials that read it)")
+                out["trend_mix"] = self.vector(value["trend_mix"], "params.trend_mix", d)
             if "trend_powers" in value:
-                out["trend_powers"] = self._powers(value["trend_powers"], "params.trend_powers", d)
+                width = d + ("trend_mix" in value)
+                out["trend_powers"] = self._powers(value["trend_powers"], "params.trend_powers", width)
                 out["trend_coef"] = self.vector(value["trend_coef"], "params.trend_coef", len(out["trend_powers"]))
             else:
                 out["trend_coef"] = self.vector(value["trend_coef"], "params.trend_coef", d)

@@ -15,14 +15,13 @@ Fitting powers of every lagged temperature on their own (the "poly" trend) lets 
 nearby lags stand in for the coil's rate on calibration ramps, which extrapolates badly to faster ones
 (tools/accuracy_table.py --quick, fine sensor, worst held-out run: 1.58x the noise floor on the lumped coil
 and 3.15x on the diffusive one with the previous default, "poly" over the lags alone; 1.52x and 1.48x with
-this trend over temp and the lags). Frozen, the trend is an ordinary polynomial (`monomial_form`), so the model
-file and the daemon's evaluator do not change.
+this trend over temp and the lags). Frozen, the trend is stored as it is fitted (`mix_form`: the mix, and
+monomials over the inputs and q), not expanded into the 165 monomials of the inputs a cubic in q makes over a
+nine-input lag bank: per sample the daemon forms q and eleven terms (tools/bench_point.py 1b).
 """
 
 from __future__ import annotations
 
-import itertools
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,26 +48,15 @@ class CoilTerms:
     def columns(self) -> int:
         return self.mix.size + self.degree - 1
 
-    def monomial_form(self, coef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(powers, coefficients) of the same trend as a polynomial in the inputs: q**p expanded by the
-        multinomial theorem over the inputs with a nonzero weight."""
+    def mix_form(self) -> np.ndarray:
+        """The trend's monomials over the inputs and one more column, q (what the model file's `trend_powers`
+        read beside `trend_mix`): every input to the power 1, then q ** 2 .. q ** degree, in the order of the
+        features, so the fitted coefficients serve as they are."""
         d = self.mix.size
-        active = [i for i in range(d) if self.mix[i] != 0.0]
-        rows, values = [list(row) for row in np.eye(d, dtype=np.int64)], list(coef[:d])
-        for power, a_p in zip(range(2, self.degree + 1), coef[d:]):
-            for combo in itertools.combinations_with_replacement(active, power):
-                row = [0] * d
-                for i in combo:
-                    row[i] += 1
-                multinomial = math.factorial(power)
-                weight = 1.0
-                for i in active:
-                    multinomial //= math.factorial(row[i])
-                    weight *= self.mix[i] ** row[i]
-                rows.append(row)
-                values.append(a_p * multinomial * weight)
-        return np.array(rows, dtype=np.int64), np.array(values, dtype=np.float64)
-
+        linear = np.eye(d, d + 1, dtype=np.int64)
+        powers = np.zeros((self.degree - 1, d + 1), dtype=np.int64)
+        powers[:, d] = np.arange(2, self.degree + 1)
+        return np.vstack((linear, powers))
 
 def fit_mix(xs: np.ndarray, ys: np.ndarray, groups: np.ndarray | None, candidates: tuple[int, ...],
             degree: int = 3) -> CoilTerms:  # fmt: skip

@@ -190,8 +190,9 @@ def fit_pso_svr(
     model = TrendSvr(c, epsilon, sigma, trend, trend_powers=trend_powers, kernel=kernel,
                      kernel_columns=kernel_columns).fit(xs, ys, groups)  # fmt: skip
     trend_coef = model.trend_.coef_ if trend else np.zeros(xs.shape[1] if trend_powers is None else len(trend_powers))
-    if isinstance(trend_powers, CoilTerms):  # frozen as the polynomial it is: the model file does not change
-        trend_powers, trend_coef = trend_powers.monomial_form(trend_coef)
+    trend_mix = None
+    if isinstance(trend_powers, CoilTerms):  # frozen as fitted: the mix, and monomials over the inputs and q
+        trend_mix, trend_powers = trend_powers.mix, trend_powers.mix_form()
     gamma = 0.5 / sigma**2  # the SVR's own (TrendSvr passes it as is)
     params = {
         "support_vectors": model.svr_.support_vectors_.tolist() if kernel else [],
@@ -202,6 +203,8 @@ def fit_pso_svr(
     }
     if trend_powers is not None:
         params["trend_powers"] = np.asarray(trend_powers).tolist()
+    if trend_mix is not None:
+        params["trend_mix"] = trend_mix.tolist()
     if kernel_columns is not None:
         params["kernel_columns"] = [int(column) for column in kernel_columns]
     hyperparameters = {
