@@ -114,16 +114,22 @@ def test_predict_one_equals_predict(name):
     assert [flag for _, flag in got] == want_clamped.tolist()
 
 
+@pytest.mark.parametrize("trend", ["short", "long", "mix"])  # a few monomials, more than POINT_TREND_TERMS, over q
 @pytest.mark.parametrize("read", [None, (0,), (0, 2, 5)])  # the kernel's inputs: every one, or some
-@pytest.mark.parametrize("centres", [5, 40, 400])  # a Python loop over few centres, numpy over many, the stack
-def test_predict_one_equals_predict_with_a_lag_bank_and_a_coil_trend(centres, read):
+@pytest.mark.parametrize("centres", [5, 40, 400])  # a Python loop over few centres, numpy over many
+def test_predict_one_equals_predict_with_a_lag_bank_and_a_coil_trend(centres, read, trend):
     """Six inputs (temp and five lags): the trend's monomials with zero and unit powers skipped, the kernel sum
-    over the whole (centres, inputs) difference at once."""
+    over the whole (centres, inputs) difference at once; a large kernel with a long trend goes through the stack."""
     rng = np.random.default_rng(8)
     specs = parse_inputs("temp,lags@30..3000/5")
-    powers = np.vstack([np.eye(6, dtype=np.int64), rng.integers(0, 3, size=(9, 6))])
+    extra = {"short": 9, "long": frozen.POINT_TREND_TERMS, "mix": 0}[trend]
+    powers = np.vstack([np.eye(6, dtype=np.int64), rng.integers(0, 3, size=(extra, 6))])
+    mix = None
+    if trend == "mix":  # as fogd-train writes its default: each input, then q ** 2 and q ** 3
+        powers = np.vstack([np.eye(6, 7, dtype=np.int64), [[0] * 6 + [2], [0] * 6 + [3]]])
+        mix = rng.dirichlet(np.ones(6))
     evaluator = Svr(rng.normal(size=(centres, 6 if read is None else len(read))), rng.normal(size=centres) * 50, 0.05,
-                    rng.normal(size=len(powers)), 0.4, powers, read)  # fmt: skip
+                    rng.normal(size=len(powers)), 0.4, powers, read, mix)  # fmt: skip
     frozen_model = FrozenModel(method="pso-svr", inputs=specs, x_mean=np.full(6, 20.0), x_scale=np.full(6, 15.0),
                                y_mean=0.3, y_scale=0.08, domain_min=np.full(6, -10.0), domain_max=np.full(6, 50.0),
                                evaluator=evaluator)  # fmt: skip
@@ -133,6 +139,8 @@ def test_predict_one_equals_predict_with_a_lag_bank_and_a_coil_trend(centres, re
     values = np.array([value for value, _ in got])
     np.testing.assert_allclose(values, want, rtol=1e-12, atol=1e-12 * np.max(np.abs(want)))
     assert [flag for _, flag in got] == want_clamped.tolist()
+    large_kernel = centres * (6 if read is None else len(read)) > frozen.POINT_NUMPY_WORK
+    assert bool(frozen_model.__dict__["_rows"]) == (large_kernel and trend == "long")
 
 
 def test_predict_one_with_a_plain_callable_evaluator():

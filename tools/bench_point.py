@@ -99,6 +99,8 @@ def per_point(trained, temps: np.ndarray, warm: np.ndarray, rate_hz: float) -> d
     start = time.perf_counter()
     for index, temp_c in enumerate(temps.tolist()):
         forget.pop("_last_point", None)
+        if forget.get("_rows"):  # a model served through StackedModels keeps its own last row
+            forget["_rows"]._last = None
         out[index] = model.predict_one((temp_c, estimator.update_one(temp_c)))[0]
     results["fast_cold"] = (time.perf_counter() - start) / temps.size, out
     # the shared compensator, one sample per call and in chunks

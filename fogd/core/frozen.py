@@ -32,6 +32,9 @@ _CHUNK_ROWS = 4096  # kernel evaluations in blocks, so memory stays bounded on m
 # Above this many kernel terms x inputs one row is cheaper through numpy than a Python loop (tools/bench_point.py:
 # the loop's cost grows with both, numpy's hardly)
 POINT_NUMPY_WORK = 48
+# A trend of more monomials than this (a coil trend expanded over a lag bank, as files from before `trend_mix`
+# hold) is cheaper through numpy with the kernel (StackedModels, one row) than in a Python loop
+POINT_TREND_TERMS = 40
 
 
 def _floats(values: np.ndarray) -> tuple:
@@ -182,9 +185,15 @@ class _GaussianPoint:
         self.centres = np.ascontiguousarray(centres, dtype=np.float64)
         self.weights = np.ascontiguousarray(weights)
         self.terms = tuple(zip(centres.tolist(), _floats(weights)))
+        self._column = np.ascontiguousarray(self.centres[:, 0]) if self.centres.shape[1] == 1 else None
 
     def __call__(self, xs: Sequence[float]) -> float:
         if self.use_numpy:
+            if self.centres.shape[1] == 1:  # one input (a kernel on the temperature): no sum over the inputs
+                difference = self._column - xs[0]
+                np.multiply(difference, difference, out=difference)
+                difference *= self.neg_gamma
+                return float(np.dot(np.exp(difference, out=difference), self.weights))
             difference = self.centres - np.asarray(xs, dtype=np.float64)
             np.multiply(difference, difference, out=difference)
             squared = difference.sum(axis=1)
@@ -389,11 +398,14 @@ class FrozenModel:
         return result
 
     def _row_path(self) -> StackedModels | bool:
-        """For a kernel model too large for a Python loop (POINT_NUMPY_WORK), the model alone as a stack: one
-        row through numpy in a few calls, trend included (a Python loop over a coil trend's monomials costs
-        more than the kernel); False for every other model."""
+        """For a kernel model too large for a Python loop (POINT_NUMPY_WORK) whose trend has more than
+        POINT_TREND_TERMS monomials (a coil trend expanded, as files from before `trend_mix` hold), the model
+        alone as a stack: one row through numpy in a few calls, trend included; False for every other model,
+        whose trend is cheaper in Python floats beside its kernel's few numpy calls (tools/bench_point.py 1b:
+        the default model with 141 support vectors, 17.3 us a sample through the stack, 9.7 us so)."""
         point = getattr(self.evaluator, "_point", None)
-        rows = StackedModels([self]) if isinstance(point, _GaussianPoint) and point.use_numpy else False
+        long_trend = len(getattr(self.evaluator, "trend_coef", ())) > POINT_TREND_TERMS
+        rows = StackedModels([self]) if isinstance(point, _GaussianPoint) and point.use_numpy and long_trend else False
         object.__setattr__(self, "_rows", rows)
         return rows
 
