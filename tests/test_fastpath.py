@@ -143,6 +143,17 @@ def test_predict_one_equals_predict_with_a_lag_bank_and_a_coil_trend(centres, re
     assert bool(frozen_model.__dict__["_rows"]) == (large_kernel and trend == "long")
 
 
+def test_a_kernel_on_some_inputs_evaluated_once_per_distinct_row_is_bit_identical():
+    """A kernel on the temperature alone: rows whose temperature repeats while the lags differ share one kernel
+    sum, the very floats each row gives alone."""
+    rng = np.random.default_rng(21)
+    evaluator = Svr(rng.normal(size=(60, 1)), rng.normal(size=60), 0.4, rng.normal(size=4), 0.1, None, (0,))
+    xs = rng.normal(size=(500, 4))
+    xs[:, 0] = np.round(xs[:, 0] * 4) / 4  # a quantised temperature: a dozen distinct values
+    want = np.concatenate([evaluator(xs[i : i + 1]) for i in range(len(xs))])
+    assert evaluator(xs).tobytes() == want.tobytes()
+
+
 def test_predict_one_with_a_plain_callable_evaluator():
     frozen_model = model(lambda xs: xs.sum(axis=1))
     value, clamped = frozen_model.predict_one((100.0, 0.0))

@@ -66,7 +66,8 @@ def input_rows(rng: np.random.Generator, d: int, n: int) -> np.ndarray:
     """Rows around the domains (some clamped), with repeats, as a lag bank's or eq. 16's inputs come."""
     x = 20.0 + rng.normal(0, 12, (n, d))
     x[: n // 4] = x[n // 4]  # repeats: the distinct-row reuse
-    return x
+    x[n // 2 :, 0] = rng.choice(x[n // 2 :, 0], 3)[rng.integers(0, 3, n - n // 2)]  # a quantised temperature beside
+    return x  # lags that differ: a kernel on the temperature alone sees few distinct rows
 
 
 @st.composite

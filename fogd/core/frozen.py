@@ -235,6 +235,16 @@ def _gaussian_sum(xs: np.ndarray, centres: np.ndarray, weights: np.ndarray, gamm
     return out
 
 
+def _distinct_gaussian_sum(xs: np.ndarray, centres: np.ndarray, weights: np.ndarray, gamma: float) -> np.ndarray:
+    """`_gaussian_sum` evaluated once per distinct row (exact: a row's sum is that row's alone). A kernel that
+    reads the temperature alone sees a few hundred distinct values in a run of a quantised sensor, while the
+    lags beside it make every whole row distinct (tools/bench_point.py 1b, 4,096 a call)."""
+    if len(xs) < _UNIQUE_MIN_ROWS or not len(weights):
+        return _gaussian_sum(xs, centres, weights, gamma)
+    rows, inverse = unique_rows(xs)
+    return _gaussian_sum(rows, centres, weights, gamma)[inverse]
+
+
 @dataclass(frozen=True)
 class RbfNetwork:
     """g(x) = sum_k coef_k exp(-||x - centre_k||^2 / (2 width^2)) + intercept (RBF network, L1-fitted)."""
@@ -275,8 +285,11 @@ class Svr:
     trend_mix: np.ndarray | None = None
 
     def __call__(self, xs: np.ndarray) -> np.ndarray:
-        kernel_xs = xs if self.kernel_columns is None else xs[:, list(self.kernel_columns)]
-        kernel = _gaussian_sum(kernel_xs, self.support_vectors, self.dual_coef, self.gamma)
+        if self.kernel_columns is None:
+            kernel = _gaussian_sum(xs, self.support_vectors, self.dual_coef, self.gamma)
+        else:
+            kernel = _distinct_gaussian_sum(xs[:, list(self.kernel_columns)], self.support_vectors, self.dual_coef,
+                                            self.gamma)  # fmt: skip
         if self.trend_powers is None:
             terms = xs
         elif self.trend_mix is None:
@@ -447,7 +460,7 @@ def build_evaluator(method: str, params: dict) -> Evaluator:
     raise ValueError(f"unknown method {method!r}")
 
 
-_STACK_ELEMENTS = 1 << 17  # rows x terms x inputs per block of StackedModels.predict: bounded memory
+_STACK_ELEMENTS = 1 << 19  # rows x terms x inputs per block of StackedModels.predict: bounded memory (4 MiB)
 
 
 def _stack_terms(model: FrozenModel) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, float, np.ndarray,
@@ -558,7 +571,10 @@ class StackedModels:
         self._reads = None if reads.all() else reads.T[:, None, :].astype(np.float64)
         self._every_trend = len(self._t_cols) == count
         self._every_kernel = len(self._k_cols) == count
-        self._block_rows = max(1, _STACK_ELEMENTS // max(1, (len(self._coef) + len(self._weights)) * max(1, d)))
+        # a block's largest temporaries, per row: the trend's factors (inputs and q, by monomial) and the kernels'
+        # differences (the inputs some kernel reads, by centre)
+        per_row = d_t * len(self._coef) + len(centres.T) * len(self._weights)
+        self._block_rows = max(1, _STACK_ELEMENTS // max(1, per_row))
         self._last: tuple | None = None
 
     @staticmethod
@@ -688,6 +704,13 @@ class StackedModels:
     def _kernel(self, xs: np.ndarray) -> np.ndarray:
         if self._k_read is not None:
             xs = xs[self._k_read]
+        inputs, rows, models = xs.shape
+        if rows >= _UNIQUE_MIN_ROWS:  # once per distinct row of what the kernels read (as _distinct_gaussian_sum)
+            distinct, inverse = unique_rows(xs.transpose(1, 0, 2).reshape(rows, inputs * models))
+            return self._kernel_sums(distinct.reshape(-1, inputs, models).transpose(1, 0, 2))[inverse]
+        return self._kernel_sums(xs)
+
+    def _kernel_sums(self, xs: np.ndarray) -> np.ndarray:
         difference = xs.repeat(self._k_sizes, axis=2)  # each centre's row reads its model's inputs
         difference -= self._centres
         if self._reads is not None:
