@@ -154,6 +154,25 @@ def test_a_kernel_on_some_inputs_evaluated_once_per_distinct_row_is_bit_identica
     assert evaluator(xs).tobytes() == want.tobytes()
 
 
+def test_a_large_kernel_reuses_its_previous_sum_only_for_the_same_inputs():
+    """One row at a time, a kernel on the temperature alone: consecutive rows with the same temperature and other
+    lags reuse the kernel's sum, the very float a fresh evaluator gives; NaN is never reused."""
+    rng = np.random.default_rng(22)
+    centres, weights = rng.normal(size=(200, 1)), rng.normal(size=200)
+
+    def make() -> Svr:
+        return Svr(centres, weights, 0.4, np.array([0.3, -0.2, 0.1]), 0.1, None, (0,))
+
+    served = make()
+    rows = rng.normal(size=(300, 3))
+    rows[:, 0] = np.repeat(rng.normal(size=30), 10)  # the temperature holds for ten samples, the lags move
+    rows[[40, 41], 0] = np.nan
+    got = [served.point(row) for row in rows.tolist()]
+    want = [make().point(row) for row in rows.tolist()]
+    assert np.array(got).tobytes() == np.array(want).tobytes()
+    assert np.isnan(got[41])
+
+
 def test_predict_one_with_a_plain_callable_evaluator():
     frozen_model = model(lambda xs: xs.sum(axis=1))
     value, clamped = frozen_model.predict_one((100.0, 0.0))

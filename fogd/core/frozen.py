@@ -186,19 +186,26 @@ class _GaussianPoint:
         self.weights = np.ascontiguousarray(weights)
         self.terms = tuple(zip(centres.tolist(), _floats(weights)))
         self._column = np.ascontiguousarray(self.centres[:, 0]) if self.centres.shape[1] == 1 else None
+        self._last: tuple[list[float], float] | None = None  # the previous row and its sum (the numpy path)
 
     def __call__(self, xs: Sequence[float]) -> float:
         if self.use_numpy:
+            last = self._last
+            if last is not None and last[0] == xs:  # a kernel on the temperature alone: it repeats (exact reuse)
+                return last[1]
             if self.centres.shape[1] == 1:  # one input (a kernel on the temperature): no sum over the inputs
                 difference = self._column - xs[0]
                 np.multiply(difference, difference, out=difference)
                 difference *= self.neg_gamma
-                return float(np.dot(np.exp(difference, out=difference), self.weights))
-            difference = self.centres - np.asarray(xs, dtype=np.float64)
-            np.multiply(difference, difference, out=difference)
-            squared = difference.sum(axis=1)
-            squared *= self.neg_gamma
-            return float(np.dot(np.exp(squared, out=squared), self.weights))
+                value = float(np.dot(np.exp(difference, out=difference), self.weights))
+            else:
+                difference = self.centres - np.asarray(xs, dtype=np.float64)
+                np.multiply(difference, difference, out=difference)
+                squared = difference.sum(axis=1)
+                squared *= self.neg_gamma
+                value = float(np.dot(np.exp(squared, out=squared), self.weights))
+            self._last = (list(xs), value)  # (NaN == NaN is False: a NaN row is never reused)
+            return value
         neg_gamma, exp = self.neg_gamma, math.exp
         total = 0.0
         if len(xs) == 2:
@@ -460,7 +467,7 @@ def build_evaluator(method: str, params: dict) -> Evaluator:
     raise ValueError(f"unknown method {method!r}")
 
 
-_STACK_ELEMENTS = 1 << 19  # rows x terms x inputs per block of StackedModels.predict: bounded memory (4 MiB)
+_STACK_ELEMENTS = 1 << 17  # rows x terms x inputs per block of StackedModels.predict: bounded memory (1 MiB)
 
 
 def _stack_terms(model: FrozenModel) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, float, np.ndarray,
