@@ -583,6 +583,7 @@ class StackedModels:
         per_row = d_t * len(self._coef) + len(centres.T) * len(self._weights)
         self._block_rows = max(1, _STACK_ELEMENTS // max(1, per_row))
         self._last: tuple | None = None
+        self._last_kernel: tuple[list, list[float]] | None = None  # `_one`'s previous kernel inputs and sums
 
     @staticmethod
     def supports(model: FrozenModel) -> bool:
@@ -638,7 +639,15 @@ class StackedModels:
             clamped.append(was_clamped)
         xs = np.array(scaled, dtype=np.float64).reshape(len(x), 1, len(constants))
         trend = self._trend(xs)[0].tolist() if len(self._t_cols) else []
-        kernel = self._kernel(xs)[0].tolist() if len(self._k_cols) else []
+        kernel: list[float] = []
+        if len(self._k_cols):
+            read = scaled if self._k_read is None else [scaled[column] for column in self._k_read]
+            last = self._last_kernel
+            if last is not None and last[0] == read:  # kernels on the temperature alone: it repeats (exact reuse)
+                kernel = last[1]
+            else:
+                kernel = self._kernel(xs)[0].tolist()
+                self._last_kernel = (read, kernel)  # (a NaN input never compares equal: never reused)
         comps = []
         for index, (has_trend, has_kernel, intercept, y_scale, y_mean) in enumerate(self._row_tail):
             value = trend[has_trend] if has_trend >= 0 else 0.0
