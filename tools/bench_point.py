@@ -100,7 +100,10 @@ def per_point(trained, temps: np.ndarray, warm: np.ndarray, rate_hz: float) -> d
     for index, temp_c in enumerate(temps.tolist()):
         forget.pop("_last_point", None)
         if forget.get("_rows"):  # a model served through StackedModels keeps its own last row
-            forget["_rows"]._last = None
+            forget["_rows"]._last = forget["_rows"]._last_kernel = None
+        kernel = getattr(model.evaluator, "_point", None)
+        if kernel is not None and hasattr(kernel, "_last"):  # and a large kernel its last sum
+            kernel._last = None
         out[index] = model.predict_one((temp_c, estimator.update_one(temp_c)))[0]
     results["fast_cold"] = (time.perf_counter() - start) / temps.size, out
     # the shared compensator, one sample per call and in chunks
