@@ -421,8 +421,8 @@ class FrozenModel:
         """For a kernel model too large for a Python loop (POINT_NUMPY_WORK) whose trend has more than
         POINT_TREND_TERMS monomials (a coil trend expanded, as files from before `trend_mix` hold), the model
         alone as a stack: one row through numpy in a few calls, trend included; False for every other model,
-        whose trend is cheaper in Python floats beside its kernel's few numpy calls (tools/bench_point.py 1b:
-        the default model with 141 support vectors, 17.3 us a sample through the stack, 9.7 us so)."""
+        whose trend is cheaper in Python floats beside its kernel's few numpy calls (tools/bench_point.py 1b
+        times fogd-train's default one sample a call)."""
         point = getattr(self.evaluator, "_point", None)
         long_trend = len(getattr(self.evaluator, "trend_coef", ())) > POINT_TREND_TERMS
         rows = StackedModels([self]) if isinstance(point, _GaussianPoint) and point.use_numpy and long_trend else False
@@ -580,7 +580,7 @@ class StackedModels:
         self._every_kernel = len(self._k_cols) == count
         # a block's largest temporaries, per row: the trend's factors (inputs and q, by monomial) and the kernels'
         # differences (the inputs some kernel reads, by centre)
-        per_row = d_t * len(self._coef) + len(centres.T) * len(self._weights)
+        per_row = d_t * len(self._coef) + centres.shape[1] * len(self._weights)
         self._block_rows = max(1, _STACK_ELEMENTS // max(1, per_row))
         self._last: tuple | None = None
         self._last_kernel: tuple[list, list[float]] | None = None  # `_one`'s previous kernel inputs and sums

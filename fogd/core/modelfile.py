@@ -96,7 +96,8 @@ PARAM_KEYS = {
     "rbf-nn": {"centres", "width", "coef", "intercept"},
     "pso-svr": {"support_vectors", "dual_coef", "gamma", "trend_coef", "intercept"},
 }
-OPTIONAL_PARAM_KEYS = {"pso-svr": {"trend_powers", "kernel_columns", "trend_mix"}}  # version 2: a polynomial trend under the SVR
+# version 2: a polynomial trend under the SVR (trend_mix: its coil temperature), the kernel's inputs
+OPTIONAL_PARAM_KEYS = {"pso-svr": {"trend_powers", "kernel_columns", "trend_mix"}}
 _BINARY_MAGIC = {
     b"\x80": "a Python pickle",
     b"PK": "a zip archive (numpy .npz or joblib?)",

@@ -2,8 +2,9 @@
 streaming: `=CONFIG,1` (the unit stops streaming and answers), one query per setting (`?ROTFMT`, `?DR`, ...),
 then `=CONFIG,0` (streaming again). The replies are found among whatever frames were already on the way and
 parsed by fogd.protocols.kvh (those frames are not lost: every byte read is handed to the reader, which frames
-it before anything else, the reply lines counted as garbage bytes); a setting the unit reports differently from the config stops fogd in one line
-(ConfigError, exit 78), since every value decoded under the wrong setting would be wrong.
+it before anything else, the reply lines counted as garbage bytes); a setting the unit reports differently
+from the config stops fogd in one line (ConfigError, exit 78), since every value decoded under the wrong
+setting would be wrong.
 """
 
 from __future__ import annotations
@@ -57,14 +58,15 @@ def _replies(port: Port, timeout_s: float, received: bytearray | None = None) ->
     replies: dict[str, bytes] = {}
     data = b""
     deadline = time.monotonic() + timeout_s
-    while len(replies) < len(kvh.SETTING_QUERIES) and time.monotonic() < deadline and len(data) < MAX_BYTES:
-        chunk = port.read(4096)
-        data += chunk
+    try:
+        while len(replies) < len(kvh.SETTING_QUERIES) and time.monotonic() < deadline and len(data) < MAX_BYTES:
+            data += port.read(4096)
+            for match in _REPLY.finditer(data):
+                line = match.group(0)
+                replies.setdefault(line.split(b",", 1)[0].decode("ascii"), line)
+    finally:  # every byte read, the replies and the frames around them, goes on to the reader
         if received is not None:
-            received += chunk
-        for match in _REPLY.finditer(data):
-            line = match.group(0)
-            replies.setdefault(line.split(b",", 1)[0].decode("ascii"), line)
+            received += data
     return replies
 
 

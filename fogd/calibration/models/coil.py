@@ -58,6 +58,7 @@ class CoilTerms:
         powers[:, d] = np.arange(2, self.degree + 1)
         return np.vstack((linear, powers))
 
+
 def fit_mix(xs: np.ndarray, ys: np.ndarray, groups: np.ndarray | None, candidates: tuple[int, ...],
             degree: int = 3) -> CoilTerms:  # fmt: skip
     """The coil-temperature mix over the `candidates` columns (the temperature inputs) that makes the trend fit
