@@ -76,6 +76,11 @@ def stacks(draw) -> tuple[list[FrozenModel], np.ndarray]:
     methods = draw(st.lists(st.sampled_from(METHODS), min_size=1, max_size=6))
     rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
     models = [random_model(rng, method, inputs) for method in methods]
+    # an IMU's channels trained on the same runs share their inputs' domain and scaling: some share the first's
+    shares = draw(st.lists(st.booleans(), min_size=len(models), max_size=len(models)))
+    first = models[0]
+    models = [replace(model, x_mean=first.x_mean, x_scale=first.x_scale, domain_min=first.domain_min,
+                      domain_max=first.domain_max) if share else model for model, share in zip(models, shares)]  # fmt: skip
     return models, input_rows(rng, len(INPUTS[inputs]), draw(st.integers(1, 300)))
 
 

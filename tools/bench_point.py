@@ -12,7 +12,8 @@ with its training-RMSE fitness), fitted the way fogd-train fits them, the same t
   - Compensator.process with 1 sample (what the daemon pays per frame when frames arrive one at a time) and
     with chunks of 4096 (what replay and the daemon under load pay), per sample.
 Then fogd-train's default model (1b) and, in the same run, that model on all six channels of an IMU through
-the ChannelCompensator fogd and fogd-replay run, beside it on one channel (1c; issue 12's six-vs-one).
+the ChannelCompensator on the daemon's path for each batch size (process_row up to SCALAR_CHUNK frames, process beyond,
+as fogd-replay too), beside it on one channel (1c; issue 12's six-vs-one).
 Target: fast per point >= 20x faster than sklearn per point, with output equal to 1e-9 deg/h.
 
 Usage: python tools/bench_point.py [--quick]
@@ -30,7 +31,7 @@ import fogd.core.estimator as fogd_estimator
 from fogd.core.channels import ChannelCompensator
 from fogd.core.columns import CHANNELS
 from fogd.core.compensator import Compensator
-from fogd.core.estimator import TempRateEstimator
+from fogd.core.estimator import SCALAR_CHUNK, TempRateEstimator
 from fogd.core.inputs import DEFAULT_INPUTS_TEXT
 
 METHODS = ("ls-poly", "rbf-nn", "pso-svr")
@@ -220,23 +221,33 @@ def default_rows(run, points: int, swarm: tuple[int, int], paper_comp1_s: float,
 
 def channel_rows(trained, temps: np.ndarray, rate_hz: float) -> None:
     """The default model on all six channels of an IMU (as bench_daemon's table 3i: the same model on each, so
-    six channels carry six times the kernel terms) through the ChannelCompensator, beside it on one channel."""
+    six channels carry six times the kernel terms) through the ChannelCompensator, beside it on one channel, on
+    the daemon's paths: a batch of up to SCALAR_CHUNK frames goes row by row through `process_row` (plain Python
+    lists, as Daemon.compensate does), a longer one through `process` (numpy arrays, as fogd-replay too)."""
     rows = []
-    for chunk in (1, 8, 40, 4096):
+    for chunk in (1, 40, 4096):
         seconds = {}
         for channels in (CHANNELS[:1], CHANNELS):
             best = float("inf")
             for _ in range(3):  # the least disturbed of three (a noisy, shared machine)
                 compensator = ChannelCompensator(dict.fromkeys(channels, trained.model), rate_hz)
+                values, usable = [0.0] * len(channels), [True] * len(channels)
                 start = time.perf_counter()
-                for begin in range(0, temps.size, chunk):
-                    part = temps[begin : begin + chunk]
-                    compensator.process(dict.fromkeys(channels, np.zeros(part.size)), part)
+                if chunk <= SCALAR_CHUNK:  # every sample alike, whatever the batch: one row covers 1..SCALAR_CHUNK
+                    row = compensator.process_row
+                    for temp_c in temps.tolist():
+                        row(values, usable, temp_c, False)
+                else:
+                    for begin in range(0, temps.size, chunk):
+                        part = temps[begin : begin + chunk]
+                        compensator.process(dict.fromkeys(channels, np.zeros(part.size)), part)
                 best = min(best, (time.perf_counter() - start) / temps.size)
             seconds[len(channels)] = best
-        rows.append([f"{chunk}/call", us(seconds[1]), us(seconds[6]), f"{seconds[6] / seconds[1]:.2f}x"])
+        label = f"1-{SCALAR_CHUNK}/call (process_row)" if chunk <= SCALAR_CHUNK else f"{chunk}/call (process)"
+        rows.append([label, us(seconds[1]), us(seconds[6]), f"{seconds[6] / seconds[1]:.2f}x"])
     print_table(
-        "1c. The default model on six channels (ChannelCompensator, the channels stacked) against one, microseconds per sample",
+        "1c. The default model on six channels (ChannelCompensator, the channels stacked) against one, microseconds per "
+        "sample, on the daemon's path for each batch size",
         ["chunk", "one channel", "six channels", "six / one"],
         rows,
     )  # fmt: skip

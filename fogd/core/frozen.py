@@ -620,13 +620,16 @@ class StackedModels:
         numpy on the (inputs, 1, models) block `_evaluate` forms."""
         shifted, constants = self._shifted, self._row_constants
         first = shifted[0] if shifted else -1
-        scaled: list[list[float]] = [[] for _ in x]
-        clamped = []
+        rows: list[list[float]] = []
+        flags: list[bool] = []
+        # once per distinct set of constants: an IMU's channels, trained on the same runs, share their inputs'
+        # domain and scaling, so six channels clamp and scale the row once
         for lows, highs, means, scales in constants:
             if shifted:  # clamp_rows: the temperature columns move by their first one's clip
                 value, low, high = x[first], lows[first], highs[first]
                 shift = (low if value < low else high if value > high else value) - value
             was_clamped = False
+            row = []
             for column, value in enumerate(x):
                 if column in shifted:
                     used = value + shift
@@ -635,9 +638,17 @@ class StackedModels:
                     used = low if value < low else high if value > high else value  # np.clip; NaN stays NaN
                 if used != value:
                     was_clamped = True
-                scaled[column].append((used - means[column]) / scales[column])
-            clamped.append(was_clamped)
-        xs = np.array(scaled, dtype=np.float64).reshape(len(x), 1, len(constants))
+                row.append((used - means[column]) / scales[column])
+            rows.append(row)
+            flags.append(was_clamped)
+        owner = self._constants_of
+        if len(rows) == 1:
+            scaled = [[value] * len(owner) for value in rows[0]]
+            clamped = flags * len(owner)
+        else:
+            scaled = [list(column) for column in zip(*(rows[k] for k in owner))]
+            clamped = [flags[k] for k in owner]
+        xs = np.array(scaled, dtype=np.float64).reshape(len(x), 1, len(owner))
         trend = self._trend(xs)[0].tolist() if len(self._t_cols) else []
         kernel: list[float] = []
         if len(self._k_cols):
@@ -660,7 +671,12 @@ class StackedModels:
     def _row_constants(self) -> list[tuple[tuple, ...]]:
         constants = self.__dict__.get("_constants")
         if constants is None:
-            constants = self._constants = [model._point_constants() for model in self.models]
+            every = [model._point_constants() for model in self.models]
+            # the distinct ones, in channel order, told apart bit for bit (0.0 and -0.0 are equal, not the same)
+            keys = [tuple(tuple(value.hex() for value in array) for array in one) for one in every]
+            distinct = list(dict.fromkeys(keys))
+            constants = self._constants = [every[keys.index(key)] for key in distinct]
+            self._constants_of = [distinct.index(key) for key in keys]  # each channel's
             t_cols, k_cols = self._t_cols.tolist(), self._k_cols.tolist()
             self._row_tail = [
                 (t_cols.index(k) if k in t_cols else -1, k_cols.index(k) if k in k_cols else -1, intercept, y_scale, y_mean)
