@@ -22,7 +22,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
@@ -470,23 +470,35 @@ def build_evaluator(method: str, params: dict) -> Evaluator:
 _STACK_ELEMENTS = 1 << 17  # rows x terms x inputs per block of StackedModels.predict: bounded memory (1 MiB)
 
 
-def _stack_terms(model: FrozenModel) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, float, np.ndarray,
-                                               np.ndarray | None]:  # fmt: skip
-    """A stackable model's (trend powers, trend coefs, kernel centres, kernel weights, gamma, intercept, the
-    inputs its kernel reads, the trend's coil mix or None), in its scaled space: every method evaluator is a
-    polynomial trend (a linear one has the identity's powers: x ** 1 is x and x ** 0 is 1.0 exactly; a coil
-    trend's powers have one more column, q) plus a Gaussian kernel sum plus an intercept. The centres have
-    every input; those the kernel does not read are 0 there."""
+class _StackTerms(NamedTuple):
+    """A stackable model in its scaled space: every method evaluator is a polynomial trend (a linear one has the
+    identity's powers: x ** 1 is x and x ** 0 is 1.0 exactly; a coil trend's powers have one more column, q)
+    plus a Gaussian kernel sum plus an intercept. The centres have every input; those the kernel does not read
+    are 0 there."""
+
+    powers: np.ndarray  # the trend's monomials
+    trend_coef: np.ndarray
+    centres: np.ndarray  # the kernel's
+    weights: np.ndarray
+    gamma: float
+    intercept: float
+    read: np.ndarray  # the inputs the kernel reads (bool, one per input)
+    mix: np.ndarray | None  # the coil trend's mix (its q = mix . x), or None
+
+
+def _stack_terms(model: FrozenModel) -> _StackTerms:
+    """A stackable model's trend and kernel terms (`_StackTerms`)."""
     evaluator, d = model.evaluator, len(model.inputs)
     identity = np.eye(d, dtype=np.int64)
     no_centres, no_weights, every = np.empty((0, d)), np.empty(0), np.ones(d, dtype=bool)
     if isinstance(evaluator, Linear):
-        return identity, evaluator.coef, no_centres, no_weights, 0.0, evaluator.intercept, every, None
+        return _StackTerms(identity, evaluator.coef, no_centres, no_weights, 0.0, evaluator.intercept, every, None)
     if isinstance(evaluator, Polynomial):
-        return evaluator.powers, evaluator.coef, no_centres, no_weights, 0.0, evaluator.intercept, every, None
+        return _StackTerms(evaluator.powers, evaluator.coef, no_centres, no_weights, 0.0, evaluator.intercept, every,
+                           None)  # fmt: skip
     if isinstance(evaluator, RbfNetwork):
-        return (np.empty((0, d), dtype=np.int64), np.empty(0), evaluator.centres, evaluator.coef,
-                0.5 / evaluator.width**2, evaluator.intercept, every, None)  # fmt: skip
+        return _StackTerms(np.empty((0, d), dtype=np.int64), np.empty(0), evaluator.centres, evaluator.coef,
+                           0.5 / evaluator.width**2, evaluator.intercept, every, None)  # fmt: skip
     assert isinstance(evaluator, Svr)
     powers = identity if evaluator.trend_powers is None else evaluator.trend_powers
     centres, read = evaluator.support_vectors, every
@@ -495,8 +507,8 @@ def _stack_terms(model: FrozenModel) -> tuple[np.ndarray, np.ndarray, np.ndarray
         read[list(evaluator.kernel_columns)] = True
         centres = np.zeros((len(evaluator.support_vectors), d))
         centres[:, read] = evaluator.support_vectors
-    return (powers, evaluator.trend_coef, centres, evaluator.dual_coef, evaluator.gamma, evaluator.intercept, read,
-            evaluator.trend_mix)  # fmt: skip
+    return _StackTerms(powers, evaluator.trend_coef, centres, evaluator.dual_coef, evaluator.gamma, evaluator.intercept,
+                       read, evaluator.trend_mix)  # fmt: skip
 
 
 class StackedModels:
@@ -532,20 +544,20 @@ class StackedModels:
         self._y_mean = np.array([m.y_mean for m in models], dtype=np.float64)
         self._y_scale = np.array([m.y_scale for m in models], dtype=np.float64)
         terms = [_stack_terms(model) for model in models]
-        self._intercept = np.array([t[5] for t in terms], dtype=np.float64)
+        self._intercept = np.array([t.intercept for t in terms], dtype=np.float64)
         # trend: every channel's monomials; factor j of a monomial is x_j ** p read from a table of each
         # channel's scaled input to the powers 0..max (the same np.power of the same floats, computed once per
         # (input, channel, power) instead of once per monomial), then multiplied over the inputs in column order
         # coil trends read one more input, q = mix . x (a channel with none: q = 0 and no power of it)
-        coil = any(t[7] is not None for t in terms)
+        coil = any(t.mix is not None for t in terms)
         d_t = d + coil
-        self._mix = (np.stack([np.zeros(d) if t[7] is None else np.asarray(t[7], dtype=np.float64) for t in terms],
+        self._mix = (np.stack([np.zeros(d) if t.mix is None else np.asarray(t.mix, dtype=np.float64) for t in terms],
                               axis=1)[:, None, :] if coil else None)  # fmt: skip
-        powers = [np.asarray(t[0], dtype=np.int64).reshape(-1, d + (t[7] is not None)) for t in terms]
+        powers = [np.asarray(t.powers, dtype=np.int64).reshape(-1, d + (t.mix is not None)) for t in terms]
         if coil:
-            powers = [p if t[7] is not None else np.column_stack((p, np.zeros(len(p), dtype=np.int64)))
+            powers = [p if t.mix is not None else np.column_stack((p, np.zeros(len(p), dtype=np.int64)))
                       for p, t in zip(powers, terms)]  # fmt: skip
-        t_sizes = [len(t[1]) for t in terms]
+        t_sizes = [len(t.trend_coef) for t in terms]
         self._t_cols = np.flatnonzero(t_sizes)
         self._t_starts = _starts(t_sizes)
         top = max((int(p.max()) for p in powers if p.size), default=0)
@@ -555,23 +567,23 @@ class StackedModels:
         # index into the table flattened per row as (input, channel, power)
         self._t_index = (np.arange(d_t)[:, None] * (count * (top + 1)) + owner[None, :] * (top + 1) + every.T).ravel()
         self._t_terms = len(owner)
-        self._coef = np.concatenate([np.asarray(t[1], dtype=np.float64) for t in terms])
+        self._coef = np.concatenate([np.asarray(t.trend_coef, dtype=np.float64) for t in terms])
         # kernel: the centres of every channel, each reading its channel's scaled inputs, with their channel's
         # -gamma and their weights
-        k_sizes = [len(t[3]) for t in terms]
+        k_sizes = [len(t.weights) for t in terms]
         self._k_cols = np.flatnonzero(k_sizes)
         self._k_sizes = np.array(k_sizes, dtype=np.intp)
         self._k_starts = _starts(k_sizes)
         # the inputs some kernel reads (the sensor's temperature alone, over a lag bank): the differences are
         # formed for those only, in column order, and an input no kernel reads adds nothing to any sum
-        reads = np.concatenate([np.repeat(t[6][None, :], size, axis=0) for t, size in zip(terms, k_sizes)])
+        reads = np.concatenate([np.repeat(t.read[None, :], size, axis=0) for t, size in zip(terms, k_sizes)])
         read_any = reads.any(axis=0)
         self._k_read = None if read_any.all() else np.flatnonzero(read_any)
         reads = reads[:, read_any]
-        centres = np.concatenate([np.asarray(t[2], dtype=np.float64).reshape(-1, d) for t in terms])[:, read_any]
+        centres = np.concatenate([np.asarray(t.centres, dtype=np.float64).reshape(-1, d) for t in terms])[:, read_any]
         self._centres = centres.T[:, None, :].copy()
-        self._weights = np.concatenate([np.asarray(t[3], dtype=np.float64) for t in terms])
-        self._neg_gamma = np.repeat([-t[4] for t in terms], k_sizes).astype(np.float64)
+        self._weights = np.concatenate([np.asarray(t.weights, dtype=np.float64) for t in terms])
+        self._neg_gamma = np.repeat([-t.gamma for t in terms], k_sizes).astype(np.float64)
         # kernels that read different inputs: the differences of the inputs a centre's kernel does not read are
         # multiplied by 0 before squaring (x * 1.0 is x exactly, and adding 0.0 leaves a sum as it was: the very
         # floats of the model alone)
