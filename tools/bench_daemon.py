@@ -16,8 +16,9 @@ fogd splits its work (the floor of that design before any work is done). Targets
       completes the output frame; p50 and p99. Targets p50 <= 3x and p99 <= 2x the relay's.
   (c) CPU at 200, 1,000 and 5,000 frames/s, from the scheduler's per-thread count (/proc/<pid>/task/*/
       schedstat). Targets <= 6 % of a core at 1,000/s and <= 20 % with zero loss at 5,000/s.
-  (d) peak RSS (VmHWM); target < 60 MB with the lag-bank model; and whether any scikit-learn or scipy file
-      is mapped into the daemon (/proc/<pid>/maps): it must never import them.
+  (d) peak RSS (VmHWM) up to the max zero-loss step, target < 60 MB with the lag-bank model, and over the whole
+      ladder (overloaded, the ring and the output queue fill up to their capacities); and whether any
+      scikit-learn or scipy file is mapped into the daemon (/proc/<pid>/maps): it must never import them.
   (e) where the daemon's time goes: each stage's cost per frame (syscalls, lexing and CRC, ring, compensation,
       encoding), in this process with fogd's own classes, for batches of 1 and 40 frames;
   (f) inside the daemon at 1,000 frames/s: from the return of the read that completed a frame (the reader
@@ -612,8 +613,13 @@ def main(argv: list[str] | None = None) -> int:
     summary, ok = [], True
     for label in results:
         r = results[label]
-        clean = [s.asked_hz for s in r["steps"] if s.loss == 0 and s.bad_headers == 0 and s.achieved_hz >= 0.95 * s.asked_hz]
-        r["max_rate"] = max(clean, default=0.0)
+        clean = [s for s in r["steps"] if s.loss == 0 and s.bad_headers == 0 and s.achieved_hz >= 0.95 * s.asked_hz]
+        r["max_rate"] = max((s.asked_hz for s in clean), default=0.0)
+        # the peak up to the highest rate it sustains: beyond it the ring and the output queue fill (bounded by
+        # their capacities) and the peak measures the overload, shown beside it
+        r["rss_overload_mb"] = r["rss_mb"]
+        if clean:
+            r["rss_mb"] = max(clean, key=lambda s: s.asked_hz).peak_rss_mb
         lat = r["latency"]
         r["p50"], r["p99"] = percentile_us(lat.latencies_s, 50), percentile_us(lat.latencies_s, 99)
         r["cpu_share"] = {hz: r["cpu"][hz].cpu_s / r["cpu"][hz].elapsed_s for hz in CPU_RATES}
@@ -622,12 +628,13 @@ def main(argv: list[str] | None = None) -> int:
             label, f"{r['max_rate']:,.0f}", f"{r['p50']:.0f}", f"{r['p99']:.0f}",
             f"{percentile_us(lat.latencies_s, 100):.0f}", f"{len(lat.latencies_s)}/{lat.written}",
             *(f"{100 * r['cpu_share'][hz]:.1f}%" for hz in CPU_RATES), f"{r['loss_5000']}", f"{r['rss_mb']:.1f}",
-            "yes" if r["sklearn"] else "no", "yes" if r["scipy"] else "no",
+            f"{r['rss_overload_mb']:.1f}", "yes" if r["sklearn"] else "no", "yes" if r["scipy"] else "no",
         ])  # fmt: skip
     print_table("3b-d. Latency at 1000 frames/s (us, last input byte written -> output frame read), CPU (% of a core), "
                 "memory", ["process", "max zero-loss/s", "p50 us", "p99 us", "max us", "matched frames",
-                           *(f"CPU at {hz:,.0f}/s" for hz in CPU_RATES), "lost at 5,000/s", "peak RSS MB",
-                           "sklearn mapped", "scipy mapped"], summary)  # fmt: skip
+                           *(f"CPU at {hz:,.0f}/s" for hz in CPU_RATES), "lost at 5,000/s",
+                           "peak RSS MB (to max zero-loss)", "peak RSS MB (whole ladder)", "sklearn mapped",
+                           "scipy mapped"], summary)  # fmt: skip
     relay = results["relay"]
     per_frame = []
     for hz in CPU_RATES:
