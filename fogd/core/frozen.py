@@ -321,6 +321,9 @@ class Svr:
 
 Evaluator = Callable[[np.ndarray], np.ndarray]
 _UNIQUE_MIN_ROWS = 64
+# StackedModels: fewer rows than _UNIQUE_MIN_ROWS but more than this evaluate their kernels once per run of equal
+# rows (bit for bit: a row's sums are that row's alone)
+_RUN_MIN_ROWS = 4
 
 
 def unique_rows(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -752,6 +755,11 @@ class StackedModels:
         if rows >= _UNIQUE_MIN_ROWS:  # once per distinct row of what the kernels read (as _distinct_gaussian_sum)
             distinct, inverse = unique_rows(xs.transpose(1, 0, 2).reshape(rows, inputs * models))
             return self._kernel_sums(distinct.reshape(-1, inputs, models).transpose(1, 0, 2))[inverse]
+        if rows > _RUN_MIN_ROWS:  # a daemon's batch: what the kernels read (the temperature) repeats in runs
+            bits = xs.transpose(1, 0, 2).reshape(rows, inputs * models).view(np.int64)
+            starts = np.flatnonzero(np.concatenate(([True], np.any(bits[1:] != bits[:-1], axis=1))))
+            if starts.size <= rows // 2:
+                return self._kernel_sums(xs[:, starts]).repeat(np.diff(starts, append=rows), axis=0)
         return self._kernel_sums(xs)
 
     def _kernel_sums(self, xs: np.ndarray) -> np.ndarray:
