@@ -88,7 +88,8 @@ def test_every_channel_equals_its_own_compensator_whatever_the_chunking(chunks, 
     run = imu_run(seed, bad_temp, bad_rate)
     stale = np.zeros(ROWS, dtype=bool)
     stale[bad_temp[:3]] = True
-    valid = {"rate_y_dph": np.arange(ROWS) % 97 != 0}
+    # a channel's own validity, on a channel alone on its bank and on one of the stacked channels
+    valid = {"rate_y_dph": np.arange(ROWS) % 97 != 0, "accel_z_g": np.arange(ROWS) % 89 != 3}
     several = ChannelCompensator(models(), RATE_HZ)
     assert several.banks == 2 and several.stacked == (STACKED,)
     streamed = chunked(lambda a, b: several.process(

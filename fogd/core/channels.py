@@ -209,19 +209,18 @@ class _Stack:
         flags[~known] |= _WARMUP
         if temp_stale is not None:
             flags[np.asarray(temp_stale, dtype=bool)] |= _TEMP_STALE
-        results = []
-        for index, (rate_dph, rate_valid) in enumerate(zip(rates, valid)):
-            own = flags.copy()
-            own[clamped[:, index]] |= _CLAMPED
-            own[outside[:, index]] |= _OUT_OF_DOMAIN
-            rate_ok = np.isfinite(rate_dph)
+        # every channel at once, (samples, channels), then a contiguous column each
+        rate_dph = np.column_stack(rates) if count > 1 else rates[0][:, None]
+        rate_ok = np.isfinite(rate_dph)
+        for index, rate_valid in enumerate(valid):
             if rate_valid is not None:
-                rate_ok &= np.asarray(rate_valid, dtype=bool)
-            own[~rate_ok] |= _RATE_INVALID
-            comp_dph = comps[:, index].copy()
-            rate_comp_dph = np.where(rate_ok, rate_dph - comp_dph, rate_dph)
-            results.append(Compensated(temp_used.copy(), temp_rate_cps.copy(), comp_dph, rate_comp_dph, own))
-        return results
+                rate_ok[:, index] &= np.asarray(rate_valid, dtype=bool)
+        own = (flags[:, None] | np.where(clamped, _CLAMPED, 0) | np.where(outside, _OUT_OF_DOMAIN, 0)
+               | np.where(rate_ok, 0, _RATE_INVALID)).astype(np.uint16)  # fmt: skip
+        rate_comp_dph = np.where(rate_ok, rate_dph - comps, rate_dph)
+        own, comps, rate_comp_dph = own.T.copy(), comps.T.copy(), rate_comp_dph.T.copy()
+        return [Compensated(temp_used.copy(), temp_rate_cps.copy(), comps[index], rate_comp_dph[index], own[index])
+                for index in range(count)]
 
     def process_few(
         self, rates: list[list[float]], temp_c: list[float], valid: list[list[bool]], temp_stale: list[bool]
