@@ -326,6 +326,15 @@ _UNIQUE_MIN_ROWS = 64
 _RUN_MIN_ROWS = 4
 
 
+def _row_changes(bits: np.ndarray) -> np.ndarray:
+    """True where a row (of a float array viewed as int64) differs bit for bit from the row before; the first
+    row always: where each run of equal consecutive rows starts."""
+    change = np.empty(len(bits), dtype=bool)
+    change[0] = True
+    np.any(bits[1:] != bits[:-1], axis=1, out=change[1:])
+    return change
+
+
 def unique_rows(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(distinct rows, index of each row of x among them), rows compared bit for bit (-0.0 is not 0.0).
 
@@ -336,17 +345,12 @@ def unique_rows(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if n == 0:
         return x, np.zeros(0, dtype=np.intp)
     bits = x.view(np.int64)
-    change = np.empty(n, dtype=bool)
-    change[0] = True
-    np.any(bits[1:] != bits[:-1], axis=1, out=change[1:])
+    change = _row_changes(bits)
     starts = np.flatnonzero(change)
     run_of_row = np.cumsum(change) - 1
     firsts = bits[starts]
     order = np.lexsort(firsts.T[::-1]) if x.shape[1] else np.arange(starts.size)
-    ordered = firsts[order]
-    new = np.empty(starts.size, dtype=bool)
-    new[0] = True
-    np.any(ordered[1:] != ordered[:-1], axis=1, out=new[1:])
+    new = _row_changes(firsts[order])  # sorted, equal rows are neighbours
     distinct_of_run = np.empty(starts.size, dtype=np.intp)
     distinct_of_run[order] = np.cumsum(new) - 1
     return x[starts[order[new]]], distinct_of_run[run_of_row]
@@ -756,8 +760,7 @@ class StackedModels:
             distinct, inverse = unique_rows(xs.transpose(1, 0, 2).reshape(rows, inputs * models))
             return self._kernel_sums(distinct.reshape(-1, inputs, models).transpose(1, 0, 2))[inverse]
         if rows > _RUN_MIN_ROWS:  # a daemon's batch: what the kernels read (the temperature) repeats in runs
-            bits = xs.transpose(1, 0, 2).reshape(rows, inputs * models).view(np.int64)
-            starts = np.flatnonzero(np.concatenate(([True], np.any(bits[1:] != bits[:-1], axis=1))))
+            starts = np.flatnonzero(_row_changes(xs.transpose(1, 0, 2).reshape(rows, inputs * models).view(np.int64)))
             if starts.size <= rows // 2:
                 return self._kernel_sums(xs[:, starts]).repeat(np.diff(starts, append=rows), axis=0)
         return self._kernel_sums(xs)
