@@ -83,8 +83,8 @@ def monomials(xs: np.ndarray, powers: np.ndarray) -> np.ndarray:
     xs = np.asarray(xs, dtype=np.float64)
     plan = _monomial_plan(np.asarray(powers))
     terms = np.empty((xs.shape[0], len(plan.outputs)))
-    # x_j ** p as one np.power of the column against the powers 0..max: the very floats StackedModels reads
-    # from its table (a scalar exponent would take numpy's other paths, x * x for 2, and part in the last bit)
+    # x_j ** p as one np.power of the column against the powers 0..max (a scalar exponent would take numpy's
+    # other paths, x * x for 2, and part in the last bit from the fit's features)
     exponents = np.arange(plan.top + 1, dtype=np.float64)
     tables: dict[int, np.ndarray] = {}
     products: list[np.ndarray] = []
@@ -552,10 +552,11 @@ class StackedModels:
         self._y_scale = np.array([m.y_scale for m in models], dtype=np.float64)
         terms = [_stack_terms(model) for model in models]
         self._intercept = np.array([t.intercept for t in terms], dtype=np.float64)
-        # trend: every channel's monomials; factor j of a monomial is x_j ** p read from a table of each
-        # channel's scaled input to the powers 0..max (the same np.power of the same floats, computed once per
-        # (input, channel, power) instead of once per monomial), then multiplied over the inputs in column order
-        # coil trends read one more input, q = mix . x (a channel with none: q = 0 and no power of it)
+        # trend: every channel's monomials, each the product of its nonzero factors x_j ** p in column order (as
+        # `monomials` forms them: the factors x ** 0 = 1.0 it leaves out change no product), read from a table of
+        # the (input, power) pairs some monomial uses, per channel; x ** p is formed as x ** (p - 1) * x, so a
+        # row's floats are the same whatever the block (numpy's power may take vector paths that part in the last
+        # bit). Coil trends read one more input, q = mix . x (a channel with none: q = 0 and no power of it).
         coil = any(t.mix is not None for t in terms)
         d_t = d + coil
         self._mix = (np.stack([np.zeros(d) if t.mix is None else np.asarray(t.mix, dtype=np.float64) for t in terms],
@@ -566,15 +567,13 @@ class StackedModels:
                       for p, t in zip(powers, terms)]  # fmt: skip
         t_sizes = [len(t.trend_coef) for t in terms]
         self._t_cols = np.flatnonzero(t_sizes)
-        self._t_starts = _starts(t_sizes)
-        top = max((int(p.max()) for p in powers if p.size), default=0)
-        self._exponents = np.arange(top + 1, dtype=np.float64)
-        owner = np.repeat(np.arange(count), t_sizes)
-        every = np.concatenate(powers) if powers else np.empty((0, d_t), dtype=np.int64)
-        # index into the table flattened per row as (input, channel, power)
-        self._t_index = (np.arange(d_t)[:, None] * (count * (top + 1)) + owner[None, :] * (top + 1) + every.T).ravel()
-        self._t_terms = len(owner)
-        self._coef = np.concatenate([np.asarray(t.trend_coef, dtype=np.float64) for t in terms])
+        with_trend = self._t_cols.tolist()
+        self._t_plan = _factor_plan([powers[k] for k in with_trend], with_trend, count)
+        longest = max(t_sizes)
+        # every trend's coefficients padded to the longest with zeros (a padded term is 1.0 * 0.0 = 0.0)
+        self._coef = np.zeros((len(with_trend), longest))
+        for row, k in enumerate(with_trend):
+            self._coef[row, : t_sizes[k]] = terms[k].trend_coef
         # kernel: the centres of every channel, each reading its channel's scaled inputs, with their channel's
         # -gamma and their weights
         k_sizes = [len(t.weights) for t in terms]
@@ -599,7 +598,7 @@ class StackedModels:
         self._every_kernel = len(self._k_cols) == count
         # a block's largest temporaries, per row: the trend's factors (inputs and q, by monomial) and the kernels'
         # differences (the inputs some kernel reads, by centre)
-        per_row = d_t * len(self._coef) + centres.shape[1] * len(self._weights)
+        per_row = d_t * self._coef.size + centres.shape[1] * len(self._weights)
         self._block_rows = max(1, _STACK_ELEMENTS // max(1, per_row))
         self._last: tuple | None = None
         self._last_kernel: tuple[list, list[float]] | None = None  # `_one`'s previous kernel inputs and sums
@@ -742,15 +741,26 @@ class StackedModels:
         return g, clamped
 
     def _trend(self, xs: np.ndarray) -> np.ndarray:
-        if self._mix is not None:  # the coil temperature, summed over the inputs in column order
-            xs = np.concatenate((xs, np.add.reduce(xs * self._mix, axis=0)[None]), axis=0)
-        inputs, rows, models = xs.shape
-        # per row, (input, model, power) flattened
-        table = np.power(xs.transpose(1, 0, 2)[..., None], self._exponents).reshape(rows, inputs * models * len(self._exponents))
-        terms = table.take(self._t_index, axis=1).reshape(rows, inputs, self._t_terms)  # (rows, inputs, monomials)
-        monomials = np.multiply.reduce(terms, axis=1)  # x_0 ** p_0 * x_1 ** p_1 * ..., in column order
+        """(rows, channels with a trend). Every sum and product is an accumulation, left to right by definition:
+        numpy's reductions may add pairwise, in an order that depends on the array's layout (one row of one
+        trend is laid out as a vector), and a row's floats must not depend on the rows beside it."""
+        plan = self._t_plan
+        _, rows, models = xs.shape
+        table = np.empty((rows, len(plan.pairs) + 1, models))  # (row, pair, model); the last pair is x ** 0 = 1.0
+        firsts = plan.levels[0]
+        if self._mix is None:
+            table[:, : len(firsts)] = xs[firsts].transpose(1, 0, 2)
+        else:  # the coil temperature q = mix . x, the last input, summed over the inputs in column order
+            table[:, : len(firsts) - 1] = xs[firsts[:-1]].transpose(1, 0, 2)
+            table[:, len(firsts) - 1] = np.add.accumulate(xs * self._mix, axis=0)[-1]
+        for level, lower, base in plan.levels[1:]:  # the powers 2, 3, ...: x ** (p - 1) * x
+            np.multiply(table[:, lower], table[:, base], out=table[:, level])
+        table[:, -1] = 1.0
+        flat = table.reshape(rows, table.shape[1] * models)
+        terms = flat.take(plan.index, axis=1).reshape(rows, *plan.shape)  # (rows, factors, channels, monomials)
+        monomials = terms[:, 0] if plan.shape[0] == 1 else np.multiply.accumulate(terms, axis=1)[:, -1]
         monomials *= self._coef
-        return np.add.reduceat(monomials, self._t_starts, axis=1)
+        return np.add.accumulate(monomials, axis=2)[:, :, -1]
 
     def _kernel(self, xs: np.ndarray) -> np.ndarray:
         if self._k_read is not None:
@@ -776,6 +786,55 @@ class StackedModels:
         np.exp(squared, out=squared)
         squared *= self._weights
         return np.add.reduceat(squared, self._k_starts, axis=1)
+
+
+class _FactorPlan(NamedTuple):
+    """How StackedModels._trend reads every trend's monomials from a table of their factors x_j ** p."""
+
+    pairs: list[tuple[int, int]]  # the (input, power) pairs some monomial uses: the powers 1, then 2, ...
+    levels: list  # the inputs of the powers 1; then per power p above 1, where x ** p, x ** (p - 1) and x are
+    index: np.ndarray  # per (factor, channel, monomial), where in a row of the table flattened (pair, model)
+    shape: tuple[int, int, int]  # (most factors of a monomial, channels with a trend, most monomials)
+
+
+def _factor_plan(powers: list[np.ndarray], channels: list[int], count: int) -> _FactorPlan:
+    """`_FactorPlan` of the trends `powers` of `channels` (of `count` stacked models); a coil trend's last input
+    is q. A monomial's factors are its nonzero powers in column order (x ** 0 = 1.0 changes no product),
+    padded with the table's 1.0, as are the monomials of a shorter trend."""
+    used: dict[int, int] = {}  # input -> highest power used
+    for table in powers:
+        for row in table.tolist():
+            for column, power in enumerate(row):
+                if power:
+                    used[column] = max(used.get(column, 0), power)
+    if powers and powers[0].shape[1] - 1 not in used:  # q (or the last input) in the table even when unused
+        used[powers[0].shape[1] - 1] = 1
+    pairs = sorted(((column, power) for column, top in used.items() for power in range(1, top + 1)),
+                   key=lambda pair: (pair[1], pair[0]))  # fmt: skip
+    where = {pair: index for index, pair in enumerate(pairs)}
+    levels: list = [np.array([column for column, power in pairs if power == 1], dtype=np.intp)]
+    for level in range(2, max(used.values(), default=1) + 1):
+        columns = [column for column, power in pairs if power == level]
+        levels.append((_as_slice([where[(column, level)] for column in columns]),  # a power's pairs are adjacent
+                       _as_slice([where[(column, level - 1)] for column in columns]),
+                       _as_slice([where[(column, 1)] for column in columns])))  # fmt: skip
+    one = len(pairs) * count  # the 1.0 (the last pair, any model), in a row flattened as (pair, model)
+    slots = [[[where[(column, power)] * count + k for column, power in enumerate(row) if power] for row in table.tolist()]
+             for k, table in zip(channels, powers)]  # fmt: skip
+    factors = max((len(slot) for trend in slots for slot in trend), default=1) or 1
+    monomials = max((len(trend) for trend in slots), default=0)
+    index = np.full((factors, len(slots), monomials), one, dtype=np.intp)
+    for row, trend in enumerate(slots):
+        for m, slot in enumerate(trend):
+            index[: len(slot), row, m] = slot
+    return _FactorPlan(pairs, levels, index.reshape(-1), (factors, len(slots), monomials))
+
+
+def _as_slice(indices: list[int]) -> slice | np.ndarray:
+    """`indices` as a slice where they are consecutive (a view, no copy), else as an index array."""
+    if indices and indices == list(range(indices[0], indices[0] + len(indices))):
+        return slice(indices[0], indices[0] + len(indices))
+    return np.array(indices, dtype=np.intp)
 
 
 def _starts(sizes: list[int]) -> np.ndarray:
