@@ -158,6 +158,42 @@ def test_any_finite_frame_decodes_and_encodes_back_to_its_own_bytes(
         assert codec.reencode(frame, frame.rate_dph, frame.accel_g) == raw
 
 
+any_value = st.one_of(st.floats(-1e6, 1e6), st.sampled_from([4e38, -4e38, 3.4e38, math.inf, math.nan]))
+axes_subsets = st.sets(st.integers(0, 2)).map(lambda axes: tuple(sorted(axes)))
+
+
+@settings(max_examples=300)
+@given(
+    status=status_bits,
+    comp_axes=axes_subsets,
+    comp_accel_axes=axes_subsets,
+    rates=st.tuples(any_value, any_value, any_value),
+    accels=st.one_of(st.none(), st.tuples(any_value, any_value, any_value)),
+)
+def test_reencode_writes_each_compensated_valid_field_as_float32_and_keeps_every_other_byte(
+    status, comp_axes, comp_accel_axes, rates, accels
+):
+    raw = format_a((1e-5, -2e-5, 3e-5), (0.01, 0.02, 1.0), status=status)
+    codec = KvhProtocol(comp_axes=comp_axes, comp_accel_axes=comp_accel_axes)
+    frame = codec.decode(raw)
+    out = codec.reencode(frame, rates, accels)
+    assert len(out) == len(raw) and crc32_mpeg2(out) == 0
+    assert out[:4] == raw[:4] and out[28:-4] == raw[28:-4]
+    fields = [(4 + 4 * axis, axis in comp_axes and status & (1 << axis), rates[axis] / codec.dph_per_unit)
+              for axis in range(3)]  # fmt: skip
+    fields += [(16 + 4 * axis, accels is not None and axis in comp_accel_axes and status & (0x10 << axis),
+                accels[axis] if accels is not None else None) for axis in range(3)]  # fmt: skip
+    for offset, replaced, value in fields:
+        field = out[offset : offset + 4]
+        if not replaced:
+            assert field == raw[offset : offset + 4]
+        elif math.isnan(value):
+            assert math.isnan(struct.unpack(">f", field)[0])
+        else:  # float32's nearest, or infinity of the same sign beyond its range
+            want = value if abs(value) <= 3.4028234663852886e38 else math.copysign(math.inf, value)
+            assert field == struct.pack(">f", want)
+
+
 @settings(max_examples=100)
 @given(
     accels=st.lists(st.tuples(finite32, finite32, finite32), min_size=1, max_size=12),

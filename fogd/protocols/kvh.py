@@ -50,6 +50,9 @@ _FRAME_B = struct.Struct(">4s3f3fIBBh")
 _FRAME_C = struct.Struct(">4s3f3ffBB")
 _CRC = struct.Struct(">I")
 _GYRO = struct.Struct(">f")
+_GYROS = struct.Struct(">3f")  # the three gyros, or with the three accelerometers after them
+_GYROS_ACCELS = struct.Struct(">6f")
+_EVERY = (True, True, True)
 
 
 def bit_reply(bits: bytes) -> bytes:
@@ -103,6 +106,7 @@ class KvhProtocol(Protocol):
         self.linfmt, self.lin_unit = linfmt, lin_unit
         self.comp_axes = tuple(sorted(set(comp_axes)))
         self.comp_accel_axes = tuple(sorted(set(comp_accel_axes)))
+        self._every_gyro, self._every_accel = self.comp_axes == (0, 1, 2), self.comp_accel_axes == (0, 1, 2)
         per_second = rate_hz if rotfmt == "delta" else 1.0
         self.dph_per_unit = (DPH_PER_RAD_S if angle_unit == "rad" else 3600.0) * per_second
         # delta velocity (m/s or ft/s per sample) x samples per second = m/s^2 or ft/s^2
@@ -247,6 +251,33 @@ class KvhProtocol(Protocol):
         if frame.rate_dph is None:
             return raw
         out = bytearray(raw)
+        if not self._pack_whole(out, frame, rate_dph, accel_g):
+            self._pack_axes(out, frame, rate_dph, accel_g)
+        # crc32_mpeg2 packed big-endian: the mirrored register's little-endian bytes, each mirrored back
+        reflected = binascii.crc32(out[:-4].translate(MIRRORED_BYTES)) ^ 0xFFFFFFFF
+        out[-4:] = reflected.to_bytes(4, "little").translate(MIRRORED_BYTES)
+        return bytes(out)
+
+    def _pack_whole(self, out: bytearray, frame: Frame, rate_dph: Sequence[float], accel_g: Sequence[float] | None) -> bool:
+        """The common frame, every gyro (and every accelerometer) compensated and valid, in one pack; False
+        where `_pack_axes` must go axis by axis (some invalid, a value beyond float32's range)."""
+        if not (self._every_gyro and frame.axis_valid == _EVERY):
+            return False
+        to_unit = self.dph_per_unit
+        try:
+            if accel_g is None or frame.accel_g is None or not self.comp_accel_axes:
+                _GYROS.pack_into(out, 4, rate_dph[0] / to_unit, rate_dph[1] / to_unit, rate_dph[2] / to_unit)
+                return True
+            if self._every_accel and frame.accel_valid == _EVERY:
+                g = self.g_per_unit
+                _GYROS_ACCELS.pack_into(out, 4, rate_dph[0] / to_unit, rate_dph[1] / to_unit, rate_dph[2] / to_unit,
+                                        accel_g[0] / g, accel_g[1] / g, accel_g[2] / g)  # fmt: skip
+                return True
+        except OverflowError:  # rare: the axes one by one, each beyond float32's range as infinity
+            pass
+        return False
+
+    def _pack_axes(self, out: bytearray, frame: Frame, rate_dph: Sequence[float], accel_g: Sequence[float] | None) -> None:
         for axis in self.comp_axes:
             if frame.axis_valid[axis]:
                 value = rate_dph[axis] / self.dph_per_unit
@@ -258,10 +289,6 @@ class KvhProtocol(Protocol):
             for axis in self.comp_accel_axes:
                 if frame.accel_valid[axis]:
                     _GYRO.pack_into(out, 16 + 4 * axis, f32(accel_g[axis] / self.g_per_unit))
-        # crc32_mpeg2 packed big-endian: the mirrored register's little-endian bytes, each mirrored back
-        reflected = binascii.crc32(out[:-4].translate(MIRRORED_BYTES)) ^ 0xFFFFFFFF
-        out[-4:] = reflected.to_bytes(4, "little").translate(MIRRORED_BYTES)
-        return bytes(out)
 
 
 
