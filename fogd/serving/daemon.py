@@ -100,31 +100,34 @@ class TemperatureHold:
         """The frames that carry a rate, as columns for the compensator, each with the temperature held for it:
         `sources` says where each channel is in a frame ((accelerometer?, axis)); an accelerometer a frame lacks
         (a fogd rate frame) is NaN and unusable."""
-        values: list[list[float]] = [[] for _ in sources]
-        usable: list[list[bool]] = [[] for _ in sources]
-        samples = ChannelSamples([], values, usable, [], [], [])
-        rows, device_s, temps_c, ages_s = samples.rows, samples.device_s, samples.temp_c, samples.temp_age_s
+        rows: list[int] = []
+        device_s: list[float | None] = []
+        temps_c: list[float] = []
+        ages_s: list[float] = []
         held_c, held_rx_s = self.temp_c, self.rx_s
-        columns = [(accel, axis, value, ok) for (accel, axis), value, ok in zip(sources, values, usable)]
+        rated: list[Frame] = []
         for index, frame in enumerate(frames):
             kind = frame.kind
             if kind in TEMP_KINDS and frame.temp_c is not None:
                 held_c, held_rx_s = frame.temp_c, t_rx_s[index]
             if kind in RATE_KINDS:
                 rows.append(index)
-                for accel, axis, value, ok in columns:
-                    if not accel:
-                        value.append(frame.rate_dph[axis])
-                        ok.append(frame.axis_valid[axis] and frame.axis_present[axis])
-                    elif frame.accel_g is None:
-                        value.append(_NAN)
-                        ok.append(False)
-                    else:
-                        value.append(frame.accel_g[axis])
-                        ok.append(frame.accel_valid[axis] and frame.accel_present[axis])
+                rated.append(frame)
                 device_s.append(frame.t_s)
                 temps_c.append(held_c)
                 ages_s.append(t_rx_s[index] - held_rx_s)
+        # then each channel's column in one pass over the rate frames (a batch of a busy IMU: six channels)
+        values: list[list[float]] = []
+        usable: list[list[bool]] = []
+        for accel, axis in sources:
+            if not accel:
+                values.append([frame.rate_dph[axis] for frame in rated])
+                usable.append([frame.axis_valid[axis] and frame.axis_present[axis] for frame in rated])
+            else:
+                values.append([_NAN if frame.accel_g is None else frame.accel_g[axis] for frame in rated])
+                usable.append([frame.accel_g is not None and frame.accel_valid[axis] and frame.accel_present[axis]
+                               for frame in rated])  # fmt: skip
+        samples = ChannelSamples(rows, values, usable, device_s, temps_c, ages_s)
         self.temp_c, self.rx_s = held_c, held_rx_s
         return samples
 
