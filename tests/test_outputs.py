@@ -11,7 +11,8 @@ import time
 import numpy as np
 import pytest
 
-from fogd.core.compensator import Compensator
+from fogd.core.columns import ACCEL_CHANNELS, CHANNELS, GYRO_CHANNELS
+from fogd.core.compensator import Compensated, Compensator
 from fogd.core.estimator import EstimatorSettings
 from fogd.core.frozen import FrozenModel, Linear
 from fogd.core.inputs import default_inputs
@@ -20,6 +21,7 @@ from fogd.protocols import get
 from fogd.protocols.base import ALL_AXES, Frame
 from fogd.protocols.kvh import DPH_PER_RAD_S
 from fogd.protocols.lexer import Lexer
+from fogd.serving.channels import ChannelPlan
 from fogd.serving.outputs import (
     CSV_COLUMNS,
     Chunk,
@@ -117,6 +119,37 @@ def test_same_reencodes_kvh_with_compensated_z_and_untouched_x_y():
         wire_z = struct.unpack(">f", struct.pack(">f", rate_comp / DPH_PER_RAD_S))[0] * DPH_PER_RAD_S
         assert out.rate_dph[Z] == wire_z
     assert any(out.raw != raw.raw for out, raw in zip(decoded, frames))
+
+
+@pytest.mark.parametrize(("gyros", "accels"), [((0, 1, 2), (0, 1, 2)), ((0, 2), (1,)), ((1,), ()), ((0, 1, 2), (2,))])
+def test_same_reencodes_exactly_the_covered_channels_of_an_imu_frame(gyros, accels):
+    """`same` with a multi-channel model: each covered gyro and accelerometer carries its compensated value
+    (float32 on the wire), every other field keeps its bytes; the CRC is fresh."""
+    covered = tuple(GYRO_CHANNELS[axis] for axis in gyros) + tuple(ACCEL_CHANNELS[axis] for axis in accels)
+    sources = tuple((False, axis) for axis in gyros) + tuple((True, axis) for axis in accels)
+    plan = ChannelPlan(covered, sources, tuple(c for c in CHANNELS if c not in covered), CHANNELS, single=False)
+    kvh = get("kvh-a", comp_axes=gyros, comp_accel_axes=accels)
+    frames = []
+    for i in range(12):
+        wire = Frame("kvh-a", "imu", "A", i, None, (1e-3 * i, -2e-3, 3e-3), ALL_AXES, ALL_AXES, 20.0,
+                     accel_g=(0.01, -0.02 * i, 0.99), accel_valid=ALL_AXES, accel_present=ALL_AXES)  # fmt: skip
+        frames.append(kvh.decode(kvh.encode(wire)))
+    rows = rate_rows(frames)
+    values = {name: [100.0 * k + j for j in range(len(rows))] for k, name in enumerate(covered)}
+    channels = {name: Compensated([20.0] * len(rows), [0.0] * len(rows), [0.0] * len(rows), column, [0] * len(rows))
+                for name, column in values.items()}  # fmt: skip
+    batch = OutputBatch(frames, rows, np.zeros(len(rows)), channels[covered[0]], channels)
+    decoded = Lexer(get("kvh-a")).feed(Formatter("same", kvh, Z, plan).encode(batch).data)
+    assert len(decoded) == len(frames)
+    for j, (out, raw) in enumerate(zip(decoded, frames)):
+        for name, offset, scale in [(GYRO_CHANNELS[a], 4 + 4 * a, DPH_PER_RAD_S) for a in range(3)] + [
+                (ACCEL_CHANNELS[a], 16 + 4 * a, 1.0) for a in range(3)]:  # fmt: skip
+            field = out.raw[offset : offset + 4]
+            if name in values:
+                assert field == struct.pack(">f", values[name][j] / scale), name
+            else:
+                assert field == raw.raw[offset : offset + 4], name
+        assert out.raw[28:32] == raw.raw[28:32]  # status, sequence, temperature
 
 
 def test_same_passes_frames_without_a_rate_through():

@@ -23,6 +23,7 @@ import stat
 import threading
 import time
 import tty
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -198,25 +199,28 @@ class Formatter:
 
     def _same_channels(self, batch: OutputBatch) -> list[bytes]:
         """Every input frame, rate frames re-encoded with every compensated channel and a fresh CRC."""
-        position = {row: j for j, row in enumerate(batch.rate_rows)}
         channels = batch.channels or {}
-        compensated = [(accel, axis, _values(channels[name].rate_comp_dph))
-                       for name, (accel, axis) in zip(self.plan.covered, self.plan.sources)]  # fmt: skip
+        gyros: dict[int, list] = {}
+        accels: dict[int, list] = {}
+        for name, (accel, axis) in zip(self.plan.covered, self.plan.sources):
+            (accels if accel else gyros)[axis] = _values(channels[name].rate_comp_dph)
+        # per rate frame, its values by axis: zipped at once where a kind's three axes are all compensated
+        gyro_rows = list(zip(gyros[0], gyros[1], gyros[2])) if len(gyros) == 3 else None
+        accel_rows = list(zip(accels[0], accels[1], accels[2])) if len(accels) == 3 else None
         reencode, with_accel = self.protocol.reencode, self._accel
-        pieces = []
-        for index, frame in enumerate(batch.frames):
-            j = position.get(index)
-            if j is None:
-                pieces.append(frame.raw)
+        rate_rows = batch.rate_rows
+        pieces = [frame.raw for frame in batch.frames]
+        for j, index in enumerate(rate_rows):
+            frame = batch.frames[index]
+            rates = gyro_rows[j] if gyro_rows is not None else _merged(frame.rate_dph, gyros, j)
+            if not with_accel:
+                pieces[index] = reencode(frame, rates)
                 continue
-            rates = list(frame.rate_dph)
-            accels = list(frame.accel_g) if frame.accel_g is not None else None
-            for accel, axis, values in compensated:
-                if not accel:
-                    rates[axis] = values[j]
-                elif accels is not None:
-                    accels[axis] = values[j]
-            pieces.append(reencode(frame, rates, accels) if with_accel else reencode(frame, rates))
+            if frame.accel_g is None:
+                pieces[index] = reencode(frame, rates, None)
+            else:
+                pieces[index] = reencode(frame, rates, accel_rows[j] if accel_rows is not None
+                                         else _merged(frame.accel_g, accels, j))  # fmt: skip
         return pieces
 
     def _csv_channels(self, batch: OutputBatch) -> list[bytes]:
@@ -287,6 +291,14 @@ def _channel_columns(plan: ChannelPlan) -> tuple[list[str], str]:
             names += output_columns(channel)
             formats += ["%.9g", "%.9g", OUTPUT_FORMATS["flags"]]
     return names, ",".join(formats) + "\n"
+
+
+def _merged(readings: Sequence[float], columns: dict[int, list], row: int) -> list[float]:
+    """A frame's readings with the compensated axes' values of `row` in place of theirs."""
+    merged = list(readings)
+    for axis, values in columns.items():
+        merged[axis] = values[row]
+    return merged
 
 
 def _values(column: np.ndarray | list) -> list:
