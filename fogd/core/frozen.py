@@ -558,7 +558,6 @@ class StackedModels:
         # row's floats are the same whatever the block (numpy's power may take vector paths that part in the last
         # bit). Coil trends read one more input, q = mix . x (a channel with none: q = 0 and no power of it).
         coil = any(t.mix is not None for t in terms)
-        d_t = d + coil
         self._mix = (np.stack([np.zeros(d) if t.mix is None else np.asarray(t.mix, dtype=np.float64) for t in terms],
                               axis=1)[:, None, :] if coil else None)  # fmt: skip
         powers = [np.asarray(t.powers, dtype=np.int64).reshape(-1, d + (t.mix is not None)) for t in terms]
@@ -596,9 +595,10 @@ class StackedModels:
         self._reads = None if reads.all() else reads.T[:, None, :].astype(np.float64)
         self._every_trend = len(self._t_cols) == count
         self._every_kernel = len(self._k_cols) == count
-        # a block's largest temporaries, per row: the trend's factors (inputs and q, by monomial) and the kernels'
-        # differences (the inputs some kernel reads, by centre)
-        per_row = d_t * self._coef.size + centres.shape[1] * len(self._weights)
+        # a block's largest temporaries, per row: the trend's table of factors and its factors by monomial, and the
+        # kernels' differences (the inputs some kernel reads, by centre)
+        per_row = ((len(self._t_plan.pairs) + 1) * count + int(np.prod(self._t_plan.shape))
+                   + centres.shape[1] * len(self._weights))  # fmt: skip
         self._block_rows = max(1, _STACK_ELEMENTS // max(1, per_row))
         self._last: tuple | None = None
         self._last_kernel: tuple[list, list[float]] | None = None  # `_one`'s previous kernel inputs and sums
