@@ -815,7 +815,8 @@ def _factor_plan(powers: list[np.ndarray], channels: list[int], count: int) -> _
     levels: list = [np.array([column for column, power in pairs if power == 1], dtype=np.intp)]
     for level in range(2, max(used.values(), default=1) + 1):
         columns = [column for column, power in pairs if power == level]
-        levels.append((_as_slice([where[(column, level)] for column in columns]),  # a power's pairs are adjacent
+        # the pairs of a power are adjacent (sorted by power): a slice, a view the products are written into
+        levels.append((slice(where[(columns[0], level)], where[(columns[-1], level)] + 1),
                        _as_slice([where[(column, level - 1)] for column in columns]),
                        _as_slice([where[(column, 1)] for column in columns])))  # fmt: skip
     one = len(pairs) * count  # the 1.0 (the last pair, any model), in a row flattened as (pair, model)
