@@ -567,7 +567,7 @@ class StackedModels:
         t_sizes = [len(t.trend_coef) for t in terms]
         self._t_cols = np.flatnonzero(t_sizes)
         with_trend = self._t_cols.tolist()
-        self._t_plan = _factor_plan([powers[k] for k in with_trend], with_trend, count)
+        self._t_plan = _factor_plan([powers[k] for k in with_trend], with_trend, count, coil)
         longest = max(t_sizes)
         # every trend's coefficients padded to the longest with zeros (a padded term is 1.0 * 0.0 = 0.0)
         self._coef = np.zeros((len(with_trend), longest))
@@ -797,9 +797,9 @@ class _FactorPlan(NamedTuple):
     shape: tuple[int, int, int]  # (most factors of a monomial, channels with a trend, most monomials)
 
 
-def _factor_plan(powers: list[np.ndarray], channels: list[int], count: int) -> _FactorPlan:
-    """`_FactorPlan` of the trends `powers` of `channels` (of `count` stacked models); a coil trend's last input
-    is q. A monomial's factors are its nonzero powers in column order (x ** 0 = 1.0 changes no product),
+def _factor_plan(powers: list[np.ndarray], channels: list[int], count: int, coil: bool) -> _FactorPlan:
+    """`_FactorPlan` of the trends `powers` of `channels` (of `count` stacked models); with `coil`, their last
+    input is q, which has a place in the table whether or not a monomial uses it. A monomial's factors are its nonzero powers in column order (x ** 0 = 1.0 changes no product),
     padded with the table's 1.0, as are the monomials of a shorter trend."""
     used: dict[int, int] = {}  # input -> highest power used
     for table in powers:
@@ -807,8 +807,9 @@ def _factor_plan(powers: list[np.ndarray], channels: list[int], count: int) -> _
             for column, power in enumerate(row):
                 if power:
                     used[column] = max(used.get(column, 0), power)
-    if powers and powers[0].shape[1] - 1 not in used:  # q (or the last input) in the table even when unused
-        used[powers[0].shape[1] - 1] = 1
+    if coil and powers:  # `_trend` writes q into the table
+        q = powers[0].shape[1] - 1
+        used[q] = max(used.get(q, 0), 1)
     pairs = sorted(((column, power) for column, top in used.items() for power in range(1, top + 1)),
                    key=lambda pair: (pair[1], pair[0]))  # fmt: skip
     where = {pair: index for index, pair in enumerate(pairs)}
