@@ -216,11 +216,9 @@ class Formatter:
             if not with_accel:
                 pieces[index] = reencode(frame, rates)
                 continue
-            if frame.accel_g is None:
-                pieces[index] = reencode(frame, rates, None)
-            else:
-                pieces[index] = reencode(frame, rates, accel_rows[j] if accel_rows is not None
-                                         else _merged(frame.accel_g, accels, j))  # fmt: skip
+            accel_g = (None if frame.accel_g is None else accel_rows[j] if accel_rows is not None
+                       else _merged(frame.accel_g, accels, j))  # fmt: skip
+            pieces[index] = reencode(frame, rates, accel_g)
         return pieces
 
     def _csv_channels(self, batch: OutputBatch) -> list[bytes]:
