@@ -1,7 +1,9 @@
 """The dequantised temperature of a coarse sensor, at either pace: streaming = batch bit for bit, inside the
 reading's band, the ramp itself on a steady ramp, the quadratic pace closer on a cycle; the resolution seen in
 calibration runs; fogd-train's default uses it (quadratic) for a whole-degree sensor and not for a fine one,
-and the model file keeps it, its pace, and reads files from before the pace as linear."""
+and the model file keeps it, its pace, and reads files from before the pace as linear. The offline estimate
+that training fits (forwards and backwards in time): symmetric in time, inside the band, closer than the
+causal one where a ramp speeds up, and used for the fitted blocks only."""
 
 import json
 
@@ -10,9 +12,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from fogd.calibration.features import training_set
 from fogd.calibration.training import TrainConfig, for_sensor
 from fogd.core import modelfile
-from fogd.core.dequantise import COARSE_RESOLUTION_C, PACES, Dequantiser, dequantise_batch, detect_resolution_c
+from fogd.core.dequantise import (COARSE_RESOLUTION_C, PACES, Dequantiser, dequantise_batch, detect_resolution_c,
+                                   smoothed_batch)
+from fogd.core.errorstats import block_means
 from fogd.core.inputs import (COARSE_DEFAULT_INPUTS_TEXT, InputBank, dequantised, describe_inputs, inputs_batch,
                                parse_inputs)
 from fogd.core.runio import Run
@@ -92,6 +97,52 @@ def test_the_quadratic_pace_follows_a_cycle_closer():
            for pace in PACES}  # fmt: skip
     assert rms["quadratic"] < 0.85 * rms["linear"], rms
     assert rms["linear"] < np.sqrt(np.mean((readings - true_c)[after] ** 2)), rms
+
+
+@pytest.mark.parametrize("pace", PACES)
+@settings(max_examples=100, deadline=None)
+@given(steps=st.lists(st.integers(-2, 2), min_size=1, max_size=300), hold=st.lists(st.integers(0, 30), max_size=300),
+       resolution_c=st.sampled_from([0.5, 1.0]))  # fmt: skip
+def test_the_smoothed_estimate_is_symmetric_in_time_and_inside_the_band(pace, steps, hold, resolution_c):
+    temps = _staircase(steps, hold, resolution_c)
+    smoothed = smoothed_batch(temps, resolution_c, RATE_HZ, pace)
+    assert np.array_equal(smoothed_batch(temps[::-1], resolution_c, RATE_HZ, pace)[::-1], smoothed)
+    assert np.all(np.abs(smoothed - temps) <= resolution_c / 2 + 1e-9)
+
+
+@pytest.mark.parametrize("pace, share", [("linear", 0.85), ("quadratic", 0.6)])
+def test_the_smoothed_estimate_is_closer_on_a_ramp_that_speeds_up(pace, share):
+    """A soak, then a ramp from rest speeding up (a parabola), in whole degrees at 1 Hz: the causal estimate
+    lags it (no pace before the second crossing, then the pace of crossings already past); forwards and
+    backwards, the lag and the lead partly cancel (the backward estimate has its own blind start at the end)."""
+    t_s = np.arange(0, 3 * 3600, 1 / RATE_HZ)
+    true_c = 20.2 + 0.5 * np.clip(t_s - 1800, 0, None) ** 2 / 3600**2 * 12  # 12 C/h after the first hour
+    readings = np.round(20.2 + 0.5 * np.clip(np.floor(t_s) - 1800, 0, None) ** 2 / 3600**2 * 12)
+    ramp = t_s > 1800
+    causal = dequantise_batch(readings, 1.0, RATE_HZ, pace)[ramp] - true_c[ramp]
+    smoothed = smoothed_batch(readings, 1.0, RATE_HZ, pace)[ramp] - true_c[ramp]
+    assert np.mean(causal) < -0.03
+    assert np.sqrt(np.mean(smoothed**2)) < share * np.sqrt(np.mean(causal**2))
+
+
+def test_training_fits_the_smoothed_estimate_and_keeps_the_served_domain():
+    """With `smoothed`, the fitted blocks of a dequantised bank are block means of the inputs of the offline
+    estimate; the calibrated domain (what the daemon clamps to) stays that of the causal inputs; inputs of the
+    readings (a fine sensor) are the same either way."""
+    t_s = np.arange(0, 2 * 3600, 1 / RATE_HZ)
+    readings = np.round(20.3 + 4.0 * np.sin(2 * np.pi * np.floor(t_s) / 3600))
+    run = _run(readings)
+    specs = dequantised(parse_inputs("temp,lags@30..3000/3"), 1.0)
+    causal, smoothed = (training_set([run], specs, 100.0, smoothed=flag) for flag in (False, True))
+    fitted_rows = inputs_batch(readings, specs, RATE_HZ, smoothed=True)
+    expected, _ = block_means(fitted_rows, np.ones(readings.size, dtype=bool), 1000)
+    assert np.array_equal(smoothed.x, expected)
+    assert not np.allclose(smoothed.x, causal.x, atol=1e-3, rtol=0)
+    assert np.array_equal(smoothed.domain_min, causal.domain_min)
+    assert np.array_equal(smoothed.domain_max, causal.domain_max)
+    assert np.array_equal(smoothed.x_samples, causal.x_samples)
+    plain = parse_inputs("temp,lags@30..3000/3")
+    assert np.array_equal(training_set([run], plain, 100.0, smoothed=True).x, training_set([run], plain, 100.0).x)
 
 
 def test_detect_resolution():

@@ -101,7 +101,7 @@ def evaluate(args, thermal: str, resolution_c: float, sensor_hz: float) -> dict[
         options = FitOptions(particles=swarm[0], iterations=swarm[1], fitness=fitness, trend=trend, n_jobs=args.jobs,
                              seed=args.seed, progress=False)  # fmt: skip
         config = TrainConfig(method=method, inputs=parse_inputs(inputs) if inputs else default_inputs(),
-                             fit=options, domain_guard=guard)  # fmt: skip
+                             fit=options, domain_guard=guard, smoothed_fit=args.fit_temperature == "smoothed")  # fmt: skip
         started = time.perf_counter()
         if method == "auto":
             winner, _ = select(calibration, config, input_sets(None, 0.5, 0.0))
@@ -136,7 +136,8 @@ def evaluate_imu(args, thermal: str, resolution_c: float, sensor_hz: float) -> d
     held_out = [simulated_imu_run(name, args.seed + 100 + i, args.rate_hz, params) for i, name in enumerate(HELD_OUT)]
     size = (20, 20) if args.quick else (60, 100)
     options = FitOptions(particles=size[0], iterations=size[1], n_jobs=args.jobs, seed=args.seed, progress=False)
-    config = TrainConfig(inputs=parse_inputs(args.default_inputs or DEFAULT_INPUTS_TEXT), fit=options)  # fogd-train's defaults: pso-svr, coil trend, cv
+    config = TrainConfig(inputs=parse_inputs(args.default_inputs or DEFAULT_INPUTS_TEXT), fit=options,
+                         smoothed_fit=args.fit_temperature == "smoothed")  # fogd-train's defaults: pso-svr, coil trend, cv
     settings = Settings(config, [config.inputs], log=False)
     started = time.perf_counter()
     fits = fit_channels(channel_jobs("", calibration, [], None, settings), settings, args.jobs)
@@ -246,6 +247,9 @@ def main() -> None:
                              + " (default: all)")
     parser.add_argument("--default-inputs", default=None,
                         help=f"the default schemes' --inputs instead of {DEFAULT_INPUTS_TEXT} (to measure another bank)")
+    parser.add_argument("--fit-temperature", choices=("smoothed", "causal"), default="smoothed",
+                        help="as fogd-train's: a dequantised temperature fitted from its offline estimate (default) "
+                             "or as the daemon computes it")
     parser.add_argument("--bound", action="store_true",
                         help="print tools/quantisation_bound.py's lower bound for each held-out run, and the default over it")
     parser.add_argument("--quick", action="store_true", help="PSO 20 x 20 instead of the paper's 60 x 100, 10 x 10 inside auto")

@@ -127,7 +127,7 @@ def channel_jobs(unit: str, runs: list[Run], holdouts: list[Run], channels: list
         raise InputError(f"{where}the runs have no channel in common")
     # the sets as training will compute them (dequantised for a coarse sensor), so that every channel finds them
     sets = [for_sensor(runs, dataclasses.replace(settings.config, inputs=specs)).inputs for specs in settings.sets]
-    inputs = [run_inputs(run, sets) for run in runs] if len(chosen) > 1 else None
+    inputs = [run_inputs(run, sets, settings.config.smoothed_fit) for run in runs] if len(chosen) > 1 else None
     return [ChannelJob(unit, name, [run.channel(name) for run in runs], [run.channel(name) for run in holdouts], inputs)
             for name in chosen]  # fmt: skip
 

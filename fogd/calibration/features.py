@@ -2,7 +2,9 @@
 
 Inputs come from the very code the daemon runs (temperature hold, eq. 16 estimator) in its batch form;
 targets are block means of the rate (100 s by default, as in the paper) minus a reference. Blocks start after
-each run's warm-up and never straddle two runs.
+each run's warm-up and never straddle two runs. One deliberate exception: a coarse sensor's dequantised
+temperature may be fitted from its offline estimate (`smoothed`, fogd.core.dequantise.smoothed_batch), which
+the daemon cannot compute; the causal estimate's pace-dependent lag would otherwise be learnt as physics.
 
 The channels of one IMU run share its temperature, hence its inputs: `run_inputs` computes them once and
 `shared_inputs` hands them to every channel's training (fogd.calibration.channels), so that six channels
@@ -20,7 +22,7 @@ import numpy as np
 from fogd.core.columns import TRUE_ERROR_COLUMN, block_samples
 from fogd.core.compensator import hold_temperature, temperature_valid
 from fogd.core.errorstats import block_means
-from fogd.core.inputs import InputSpec, inputs_batch, warmup_samples
+from fogd.core.inputs import InputSpec, dequantises, inputs_batch, warmup_samples
 from fogd.core.runio import Run
 from fogd.errors import InputError
 
@@ -42,19 +44,21 @@ class TrainingSet:
     x_samples: np.ndarray | None = None  # evenly strided warm sample rows (inputs as served, not block means)
 
 
-Inputs = dict[tuple[InputSpec, ...], np.ndarray]  # an input set -> its (rows from the first valid temperature, inputs)
+# (an input set, smoothed) -> its (rows from the first valid temperature, inputs)
+Inputs = dict[tuple[tuple[InputSpec, ...], bool], np.ndarray]
 _SHARED: dict[int, tuple[np.ndarray, Inputs]] = {}  # id(temp_c) -> (that temp_c, its inputs by input set)
 
 
-def run_inputs(run: Run, sets: list[tuple[InputSpec, ...]]) -> Inputs:
+def run_inputs(run: Run, sets: list[tuple[InputSpec, ...]], smoothed: bool = False) -> Inputs:
     """The run's inputs for each input set, from its first valid temperature on (the temperature held over
-    invalid readings), as training uses them."""
+    invalid readings), as training uses them: as served and, with `smoothed`, as fitted."""
     temp_ok = temperature_valid(run.temp_c)
     if not temp_ok.any():
         raise InputError(f"{run.path}: no valid temperature in the whole run")
     first = int(np.argmax(temp_ok))
     temp_c = hold_temperature(run.temp_c[first:], temp_ok[first:])
-    return {specs: inputs_batch(temp_c, specs, run.rate_hz) for specs in dict.fromkeys(sets)}
+    keys = [(specs, False) for specs in sets] + [(specs, True) for specs in sets if smoothed and dequantises(specs)]
+    return {key: inputs_batch(temp_c, key[0], run.rate_hz, key[1]) for key in dict.fromkeys(keys)}
 
 
 @contextmanager
@@ -71,19 +75,22 @@ def shared_inputs(runs: list[Run], inputs: list[Inputs]) -> Iterator[None]:
             _SHARED.pop(key, None)
 
 
-def _inputs(run: Run, temp_c: np.ndarray, specs: tuple[InputSpec, ...]) -> np.ndarray:
+def _inputs(run: Run, temp_c: np.ndarray, specs: tuple[InputSpec, ...], smoothed: bool) -> np.ndarray:
     shared = _SHARED.get(id(run.temp_c))
-    if shared is not None and shared[0] is run.temp_c and specs in shared[1]:
-        return shared[1][specs]
-    return inputs_batch(temp_c, specs, run.rate_hz)
+    if shared is not None and shared[0] is run.temp_c and (specs, smoothed) in shared[1]:
+        return shared[1][specs, smoothed]
+    return inputs_batch(temp_c, specs, run.rate_hz, smoothed)
 
 
-def training_set(runs: list[Run], specs: tuple[InputSpec, ...], block_s: float, min_warmup_s: float = 0.0) -> TrainingSet:
+def training_set(runs: list[Run], specs: tuple[InputSpec, ...], block_s: float, min_warmup_s: float = 0.0,
+                 smoothed: bool = False) -> TrainingSet:  # fmt: skip
     """Build the block rows of all runs; raises InputError if a run is too short to give any.
 
     `min_warmup_s` starts the blocks at least that late in each run, so that input sets with different
-    estimator windows get the very same blocks and targets (`--method auto` compares them on those)."""
-    parts = [_run_blocks(run, index, specs, block_s, min_warmup_s) for index, run in enumerate(runs)]
+    estimator windows get the very same blocks and targets (`--method auto` compares them on those).
+    `smoothed` fits a dequantised temperature's inputs from its offline estimate (fogd.core.dequantise.
+    smoothed_batch); the calibrated domain and the sample rows stay as the daemon computes them."""
+    parts = [_run_blocks(run, index, specs, block_s, min_warmup_s, smoothed) for index, run in enumerate(runs)]
     with_truth = all(part["truth"] is not None for part in parts)
     return TrainingSet(
         x=np.concatenate([part["x"] for part in parts]),
@@ -98,7 +105,8 @@ def training_set(runs: list[Run], specs: tuple[InputSpec, ...], block_s: float, 
     )
 
 
-def _run_blocks(run: Run, index: int, specs: tuple[InputSpec, ...], block_s: float, min_warmup_s: float) -> dict:
+def _run_blocks(run: Run, index: int, specs: tuple[InputSpec, ...], block_s: float, min_warmup_s: float,
+                smoothed: bool) -> dict:  # fmt: skip
     warmup = max(warmup_samples(specs, run.rate_hz), int(round(min_warmup_s * run.rate_hz)))
     block_n = block_samples(block_s, run.rate_hz)
     temp_ok = temperature_valid(run.temp_c)
@@ -112,10 +120,11 @@ def _run_blocks(run: Run, index: int, specs: tuple[InputSpec, ...], block_s: flo
             f"{run.path}: {run.rows} rows at {run.rate_hz:.6g} Hz is too short: the estimator window needs "
             f"{warmup + 1} rows and one {block_s:g} s block {block_n} more"
         )
-    x = _inputs(run, temp_c, specs)[warmup:]
+    x = _inputs(run, temp_c, specs, False)[warmup:]
+    fitted = _inputs(run, temp_c, specs, True)[warmup:] if smoothed and dequantises(specs) else x
     rate = run.rate_dph[first + warmup :]
     use = temp_ok[first + warmup :] & np.isfinite(rate)
-    x_blocks, kept = block_means(x, use, block_n)
+    x_blocks, kept = block_means(fitted, use, block_n)
     rate_blocks, _ = block_means(rate, use, block_n)
     if not kept.any():
         raise InputError(f"{run.path}: no {block_s:g} s block has at least half of its rows valid")

@@ -26,6 +26,7 @@ from fogd.core.inputs import (
     MAX_RESOLUTION_C,
     InputSpec,
     dequantised,
+    dequantises,
     dynamic_inputs,
     kernel_columns,
     parse_inputs,
@@ -49,6 +50,7 @@ class TrainConfig:
     name: str | None = None
     domain_guard: bool = False  # store a domain guard and its linear fallback (fogd.core.domain), as --domain-guard
     sensor_resolution_c: float | None = None  # None: detected from the runs; a coarse sensor is dequantised
+    smoothed_fit: bool = True  # fit a dequantised temperature from its offline estimate (features.training_set)
     unit: str = "deg/h"  # the channel's unit, for what training says (an accelerometer's is g)
 
 
@@ -56,7 +58,7 @@ def for_sensor(runs: list[Run], config: TrainConfig) -> TrainConfig:
     """`config` with its inputs computed from the dequantised temperature when the runs' sensor is coarse
     (fogd.core.dequantise: a KVH's whole degrees), from the readings otherwise; inputs already marked are kept.
     The default inputs become a coarse sensor's default (COARSE_DEFAULT_INPUTS_TEXT) when it is dequantised."""
-    if any(spec.dequantise_c is not None for spec in config.inputs):
+    if dequantises(config.inputs):
         return config
     resolution_c = config.sensor_resolution_c
     if resolution_c is not None and resolution_c > MAX_RESOLUTION_C:
@@ -97,7 +99,7 @@ class Trained:
 def prepare(runs: list[Run], config: TrainConfig, min_warmup_s: float = 0.0) -> tuple[TrainingSet, float]:
     """Block rows of the runs and the reference rate; shared by every method of a comparison."""
     config = for_sensor(runs, config)
-    data = training_set(runs, config.inputs, config.block_s, min_warmup_s)
+    data = training_set(runs, config.inputs, config.block_s, min_warmup_s, config.smoothed_fit)
     reference = float(np.mean(data.rate_dph)) if config.reference == "mean" else float(config.reference)
     return data, reference
 
@@ -136,6 +138,7 @@ def train(runs: list[Run], config: TrainConfig, prepared: tuple[TrainingSet, flo
             "fitness": config.fit.fitness if config.method == "pso-svr" else None,
             "hyperparameters": _json_ready(fitted.hyperparameters),
             "fitness_history_dph": [float(value) for value in fitted.fitness_history],
+            "fit_temperature": "smoothed" if config.smoothed_fit and dequantises(config.inputs) else "as served",
         },
         metrics=metrics,
         created_utc=created,

@@ -147,6 +147,12 @@ def parser() -> ArgumentParser:
         help="the temperature sensor's resolution (default: seen in the runs); from 0.5 C (a KVH's whole degrees) "
              "the inputs are computed from a dequantised temperature, which the model file keeps; 0: never",
     )  # fmt: skip
+    p.add_argument(
+        "--fit-temperature", choices=("smoothed", "causal"), default="smoothed",
+        help="a dequantised temperature's inputs are fitted from its offline estimate, forwards and backwards in "
+             "time (smoothed: the causal estimate's lag behind a ramp is not learnt as physics) or as the daemon "
+             "computes them (causal); the daemon always computes them causally",
+    )  # fmt: skip
     p.add_argument("--name", help="model name recorded in the file and in the daemon's status")
     p.add_argument("--compare", action="store_true", help="fit every method and print the paper's table 3")
     p.add_argument("--holdout", nargs="+", default=[], metavar="RUN.csv", help="runs not used for training: table 4 each")
@@ -199,6 +205,7 @@ def body(argv: Sequence[str] | None) -> int:
         ),  # fmt: skip
         name=args.name,
         sensor_resolution_c=args.sensor_resolution_c,
+        smoothed_fit=args.fit_temperature == "smoothed",
     )
     settings = Settings(config, sets, auto=auto, compare=args.compare, log=not args.quiet)
     jobs = [channel_jobs(unit.name if args.manifest else "", runs, [read_run(path) for path in unit.holdout],

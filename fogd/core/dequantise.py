@@ -22,6 +22,12 @@ reads as temperature rates.
 
 Streaming (`Dequantiser.update`, any chunk size, O(1) per sample) and batch (`dequantise_batch`) run the
 same per-sample recurrence in Python floats, so both give the same floats bit for bit whatever the chunking.
+
+`smoothed_batch` is for fitting only, never served: the mean of the estimate run forwards and run backwards
+in time. The causal estimate lags every ramp by a pace-dependent amount; fitted on it, a model learns the
+calibration ramps' lag and misreads every faster history (errors in the variables). Backwards, the estimate
+leads by much the same, so their mean sits close to the sensor's temperature on a ramp, and the fit sees
+the temperature's own dynamics (tools/dequantise_error.py --fit smoothed).
 """
 
 from __future__ import annotations
@@ -165,3 +171,11 @@ class Dequantiser:
 def dequantise_batch(temp_c: np.ndarray, resolution_c: float, rate_hz: float, pace: str = "linear") -> np.ndarray:
     """The estimate over a whole run (the streaming form fed in one chunk)."""
     return Dequantiser(resolution_c, rate_hz, pace).update(temp_c)
+
+
+def smoothed_batch(temp_c: np.ndarray, resolution_c: float, rate_hz: float, pace: str = "linear") -> np.ndarray:
+    """Offline, for fitting: the mean of the estimate forwards and the estimate backwards in time."""
+    temp_c = np.asarray(temp_c, dtype=np.float64)
+    forwards = dequantise_batch(temp_c, resolution_c, rate_hz, pace)
+    backwards = dequantise_batch(temp_c[::-1], resolution_c, rate_hz, pace)[::-1]
+    return 0.5 * (forwards + backwards)

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fogd.core.dequantise import DEFAULT_PACE, PACES, Dequantiser
+from fogd.core.dequantise import DEFAULT_PACE, PACES, Dequantiser, dequantise_batch, smoothed_batch
 from fogd.core.estimator import EstimatorSettings, TempRateEstimator, temp_rate_batch
 from fogd.core.lag import MAX_TAU_S, LagFilter
 from fogd.core.play import MAX_WIDTH_C, PlayFilter
@@ -225,10 +225,15 @@ def temperature_columns(specs: tuple[InputSpec, ...]) -> tuple[int, ...]:
     return tuple(i for i, spec in enumerate(specs) if spec.kind in (TEMP, TEMP_LAG))
 
 
+def dequantises(specs: tuple[InputSpec, ...]) -> bool:
+    """Whether some input is computed from a coarse sensor's dequantised estimate."""
+    return any(spec.dequantise_c is not None for spec in specs)
+
+
 def dynamic_inputs(specs: tuple[InputSpec, ...]) -> bool:
     """Whether the inputs carry a thermal state (a lag bank, a play operator, a dequantised estimate) beyond the
     paper's temperature and eq. 16 rates."""
-    return any(spec.kind not in (TEMP, TEMP_RATE) or spec.dequantise_c is not None for spec in specs)
+    return dequantises(specs) or any(spec.kind not in (TEMP, TEMP_RATE) for spec in specs)
 
 
 def kernel_columns(specs: tuple[InputSpec, ...]) -> tuple[int, ...] | None:
@@ -314,10 +319,12 @@ def warmup_samples(specs: tuple[InputSpec, ...], rate_hz: float) -> int:
     return max(windows, default=1) - 1
 
 
-def inputs_batch(temp_c: np.ndarray, specs: tuple[InputSpec, ...], rate_hz: float) -> np.ndarray:
-    """All inputs for a whole run of finite temperatures: an (n, len(specs)) array."""
+def inputs_batch(temp_c: np.ndarray, specs: tuple[InputSpec, ...], rate_hz: float, smoothed: bool = False) -> np.ndarray:
+    """All inputs for a whole run of finite temperatures: an (n, len(specs)) array. `smoothed` (fitting only)
+    computes the dequantised inputs from the offline estimate (fogd.core.dequantise.smoothed_batch)."""
     temp_c = np.asarray(temp_c, dtype=np.float64)
-    sources = {key: temp_c if key is None else Dequantiser(key[0], rate_hz, key[1]).update(temp_c)
+    dequantise = smoothed_batch if smoothed else dequantise_batch
+    sources = {key: temp_c if key is None else dequantise(temp_c, key[0], rate_hz, key[1])
                for key in _sources(specs)}  # fmt: skip
     columns = [_column_batch(sources[spec.source], spec, rate_hz) for spec in specs]
     return np.column_stack(columns) if columns else np.empty((temp_c.size, 0))

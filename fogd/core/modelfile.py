@@ -65,6 +65,7 @@ from fogd.core.inputs import (
     TEMP_PLAY,
     TEMP_RATE,
     InputSpec,
+    dequantises,
     temperature_columns,
 )
 from fogd.core.lag import MAX_TAU_S
@@ -324,7 +325,7 @@ def _version(inputs: tuple[InputSpec, ...]) -> int:
     """The oldest single-channel version that holds these inputs, so an older fogd refuses what it cannot serve."""
     if any(spec.kind == TEMP_PLAY for spec in inputs):
         return PLAY_VERSION
-    return DEQUANTISED_VERSION if any(spec.dequantise_c is not None for spec in inputs) else MODEL_VERSION
+    return DEQUANTISED_VERSION if dequantises(inputs) else MODEL_VERSION
 
 
 def from_channels_document(doc: Any, *, source: str = "model") -> ChannelModels:
