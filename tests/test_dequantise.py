@@ -18,7 +18,7 @@ from fogd.core import modelfile
 from fogd.core.dequantise import (COARSE_RESOLUTION_C, PACES, Dequantiser, dequantise_batch, detect_resolution_c,
                                    smoothed_batch)
 from fogd.core.errorstats import block_means
-from fogd.core.inputs import (COARSE_DEFAULT_INPUTS_TEXT, InputBank, dequantised, describe_inputs, inputs_batch,
+from fogd.core.inputs import (DEFAULT_INPUTS_TEXT, InputBank, dequantised, describe_inputs, inputs_batch,
                                parse_inputs)
 from fogd.core.runio import Run
 from fogd.errors import ModelFileError, UsageError
@@ -165,7 +165,7 @@ def test_the_default_dequantises_a_whole_degree_sensor_only():
     coarse = for_sensor([_run(np.round(ramp))], config)
     assert all(spec.dequantise_c == 1.0 and spec.dequantise_pace == "quadratic" for spec in coarse.inputs)
     assert describe_inputs(coarse.inputs).endswith(" (dequantised 1 C)")
-    assert coarse.inputs == dequantised(parse_inputs(COARSE_DEFAULT_INPUTS_TEXT), 1.0)  # a coarse sensor's default
+    assert coarse.inputs == dequantised(parse_inputs(DEFAULT_INPUTS_TEXT), 1.0)  # the default, dequantised
     chosen = parse_inputs("temp,lag@300,play@2")  # inputs asked for are kept, dequantised
     assert for_sensor([_run(np.round(ramp))], TrainConfig(inputs=chosen)).inputs == dequantised(chosen, 1.0)
     assert for_sensor([_run(np.round(ramp * 16) / 16)], config).inputs == config.inputs
@@ -279,7 +279,7 @@ def test_model_file_rejects_a_bad_or_unneeded_pace(tmp_path, pace):
 
 
 def test_dequantising_a_whole_degree_sensor_lowers_held_out_drift():
-    """fogd-train's default inputs for a coarse sensor on simulated whole-degree calibration runs, with and without
+    """A lag bank (the coarse sensor's default until 2026-11-26) on simulated whole-degree calibration runs, with and without
     the dequantised temperature, replayed on held-out runs: dequantised, the drift left is lower on every one."""
     from fogd.calibration.models import FitOptions
     from fogd.calibration.replay import replay, replay_table
@@ -299,8 +299,8 @@ def test_dequantising_a_whole_degree_sensor_lowers_held_out_drift():
     options = FitOptions(particles=6, iterations=5, progress=False)
     drift = {}
     for resolution_c in (0.0, None):
-        trained = train(calibration, TrainConfig(inputs=parse_inputs(COARSE_DEFAULT_INPUTS_TEXT), fit=options,
+        trained = train(calibration, TrainConfig(inputs=parse_inputs("temp,lags@30..3000/5"), fit=options,
                                                  sensor_resolution_c=resolution_c))  # fmt: skip
-        assert trained.document["version"] == (2 if resolution_c == 0.0 else 4)
+        assert all((spec.dequantise_c is None) == (resolution_c == 0.0) for spec in trained.model.inputs)
         drift[resolution_c] = [replay_table(r, replay(trained.model, r), 100.0).after.rmse_dph for r in held_out]
     assert all(dequantised < readings for dequantised, readings in zip(drift[None], drift[0.0])), drift

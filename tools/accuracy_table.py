@@ -43,9 +43,7 @@ from fogd.calibration.selection import (
 )
 from fogd.calibration.training import TrainConfig, train
 from fogd.core.columns import CHANNELS, channel_unit, truth_column
-from fogd.core.dequantise import COARSE_RESOLUTION_C
 from fogd.core.inputs import (
-    COARSE_DEFAULT_INPUTS_TEXT,
     DEFAULT_INPUTS_TEXT,
     default_inputs,
     parse_inputs,
@@ -108,7 +106,7 @@ def evaluate(args, thermal: str, resolution_c: float, sensor_hz: float) -> dict[
             trained, note = winner.trained, f"chose {winner.label}"
         else:
             trained, note = train(calibration, config), ""
-        shown = label.replace(DEFAULT_INPUTS_TEXT, shown_inputs(args, resolution_c))
+        shown = label.replace(DEFAULT_INPUTS_TEXT, args.default_inputs or DEFAULT_INPUTS_TEXT)
         print(f"#   {shown}: {time.perf_counter() - started:.0f} s {note}", flush=True)
         tables = [replay_table(run, replay(trained.model, run), 100.0) for run in held_out]
         rows[label] = [(t.after.rmse_dph / t.best.rmse_dph, t.fallback_share) for t in tables]
@@ -182,15 +180,6 @@ def print_channel_tables(title: str, rows: dict[str, dict[str, list]], bar: floa
         print(f"| {channel} | " + " | ".join(f"{r:.2f}" for r in ratios) + f" | {max(ratios):.2f} | "
               f"{'yes' if max(ratios) <= bar else 'no'} | {min(before):.0f}-{max(before):.0f} | "
               f"{min(floors):.1e}-{max(floors):.1e} {channel_unit(channel)} |")
-
-
-def shown_inputs(args, resolution_c: float) -> str:
-    """The default's inputs as trained for this sensor: fogd-train gives a coarse sensor its own default inputs
-    (fogd.calibration.training.for_sensor) in place of the default, also when `--default-inputs` names it."""
-    given = args.default_inputs or DEFAULT_INPUTS_TEXT
-    if resolution_c >= COARSE_RESOLUTION_C and parse_inputs(given) == parse_inputs(DEFAULT_INPUTS_TEXT):
-        return COARSE_DEFAULT_INPUTS_TEXT
-    return given
 
 
 def selected_schemes(args) -> list[tuple]:
@@ -273,7 +262,7 @@ def main() -> None:
             if args.hysteresis_deadband_c is not None:
                 hysteresis += f", play width {args.hysteresis_deadband_c:g} C"
             if args.default_inputs:
-                hysteresis += f", the default's inputs {shown_inputs(args, resolution_c)}"
+                hysteresis += f", the default's inputs {args.default_inputs}"
             if args.imu:
                 print_channel_tables(f"Navigation-grade IMU, {thermal} coil, {sensor} sensor; {args.rate_hz:g} Hz, seed "
                                      f"{args.seed}{', PSO 20 x 20' if args.quick else ''}{hysteresis}: std of 100 s block "
@@ -291,7 +280,7 @@ def main() -> None:
                 bound = quantisation_bound.run_bounds(thermal, resolution_c, sensor_hz, args.rate_hz, args.seed, **extra)
             print_table(f"Navigation-grade gyro, {thermal} coil, {sensor} sensor; {args.rate_hz:g} Hz, seed {args.seed}"
                         f"{', PSO 20 x 20' if args.quick else ''}{hysteresis}: std of 100 s block means after 600 s / noise floor",
-                        rows, shown_inputs(args, resolution_c), bound)  # fmt: skip
+                        rows, args.default_inputs or DEFAULT_INPUTS_TEXT, bound)  # fmt: skip
 
 
 if __name__ == "__main__":

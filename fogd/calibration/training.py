@@ -21,7 +21,6 @@ from fogd.core.dequantise import COARSE_RESOLUTION_C, detect_resolution_c
 from fogd.core.errorstats import ErrorStats
 from fogd.core.frozen import FrozenModel
 from fogd.core.inputs import (
-    COARSE_DEFAULT_INPUTS_TEXT,
     DEFAULT_INPUTS_TEXT,
     MAX_RESOLUTION_C,
     InputSpec,
@@ -56,8 +55,7 @@ class TrainConfig:
 
 def for_sensor(runs: list[Run], config: TrainConfig) -> TrainConfig:
     """`config` with its inputs computed from the dequantised temperature when the runs' sensor is coarse
-    (fogd.core.dequantise: a KVH's whole degrees), from the readings otherwise; inputs already marked are kept.
-    The default inputs become a coarse sensor's default (COARSE_DEFAULT_INPUTS_TEXT) when it is dequantised."""
+    (fogd.core.dequantise: a KVH's whole degrees), from the readings otherwise; inputs already marked are kept."""
     if dequantises(config.inputs):
         return config
     resolution_c = config.sensor_resolution_c
@@ -68,10 +66,7 @@ def for_sensor(runs: list[Run], config: TrainConfig) -> TrainConfig:
         resolution_c = detect_resolution_c([run.temp_c for run in runs])
     if not COARSE_RESOLUTION_C <= resolution_c <= MAX_RESOLUTION_C:  # beyond: jumps, not a sensor's steps
         return config
-    inputs = config.inputs
-    if inputs == parse_inputs(DEFAULT_INPUTS_TEXT):  # the default: a coarse sensor's own (fogd.core.inputs)
-        inputs = parse_inputs(COARSE_DEFAULT_INPUTS_TEXT)
-    return dataclasses.replace(config, inputs=dequantised(inputs, resolution_c))
+    return dataclasses.replace(config, inputs=dequantised(config.inputs, resolution_c))
 
 
 @dataclass

@@ -33,7 +33,6 @@ from fogd.core.atomic import refuse_inputs
 from fogd.core.columns import BLOCK_S, CHANNELS, channel_unit
 from fogd.core.estimator import EstimatorSettings
 from fogd.core.inputs import (
-    COARSE_DEFAULT_INPUTS_TEXT,
     DEFAULT_INPUTS_TEXT,
     INPUTS_SYNTAX,
     default_inputs,
@@ -83,8 +82,8 @@ def parser() -> ArgumentParser:
     p.add_argument(
         "--inputs", metavar="LIST", default=None,
         help=f"model inputs (default {DEFAULT_INPUTS_TEXT}: the sensor temperature, a bank of lags spanning the "
-        f"thermal range and the play operator for the gyro's hysteresis; {COARSE_DEFAULT_INPUTS_TEXT} for a coarse "
-        "sensor, dequantised; 'paper' is "
+        "thermal range and the play operator for the gyro's hysteresis; from a coarse sensor's dequantised "
+        "temperature; 'paper' is "
         f"the paper's temp,rate@WINDOW_S): {INPUTS_SYNTAX}",
     )  # fmt: skip
     p.add_argument(

@@ -268,10 +268,11 @@ STATIC_MAX_TAU_S = 1000.0  # temperatures that follow the coil: the sensor's and
 # the coil trend alone on the true sensor temperature, seed 1, worst held-out run 1.38x lumped and 1.47x
 # diffusive without it, 1.12x and 1.17x with play@2). tools/accuracy_table.py --quick --sensor fine --schemes default, worst run, seeds 1 / 2:
 # lumped 1.52 / 1.92 before, 1.18 / 1.22 with it; diffusive 1.48 / 1.45 before, 1.37 / 1.39 with it.
-# A coarse sensor (dequantised) keeps the sparser bank: the denser one took its fast runs down and its slow
-# ones up (whole degrees, seed 1: paper-test 2.70 -> 3.30 lumped, 3.63 -> 4.47 diffusive).
+# A coarse sensor (dequantised) has the same default: fitted from the offline estimate (fogd.core.dequantise.
+# smoothed_batch), the denser bank halves the whole-degree runs' worst drift (tools/accuracy_table.py --quick
+# --sensor whole --schemes default, seed 1, worst run: lumped 13.55 with temp,lags@30..3000/5 fitted causally,
+# 9.92 with this bank fitted causally, 6.48 fitted from the offline estimate; diffusive 19.87, 14.32, 9.72).
 DEFAULT_INPUTS_TEXT = "temp,lags@10..3000/7,play@2"
-COARSE_DEFAULT_INPUTS_TEXT = "temp,lags@30..3000/5"
 
 
 def static_columns(specs: tuple[InputSpec, ...], max_tau_s: float = STATIC_MAX_TAU_S) -> tuple[int, ...]:
