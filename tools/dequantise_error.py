@@ -12,6 +12,7 @@ estimate's own RMS error against the true temperature (what the sensor element i
 
     python tools/dequantise_error.py                      # seeds 1 and 2, both coils, every estimator
     python tools/dequantise_error.py --estimators linear,quadratic --seeds 1 --thermal lumped
+    python tools/dequantise_error.py --estimators quadratic --fit smoothed   # fitted as fogd-train fits it
 
 Estimators: `readings` (the staircase itself); fogd.core.dequantise at its `linear` pace (fogd-train's before
 `dequantise_pace`) and its `quadratic` pace (the default now); `kalman-edge` and `kalman-clamp`, an
@@ -157,8 +158,18 @@ def fitted_trend(runs: list[SimRun], temps_c: list[np.ndarray], specs, rate_hz: 
     return lambda temp_c: model.predict((inputs_batch(temp_c, specs, rate_hz) - centre) / scale)
 
 
+def fit_temperature(estimator: Estimator, readings_c: np.ndarray, resolution_c: float, rate_hz: float,
+                    fit: str) -> np.ndarray:  # fmt: skip
+    """The calibration run's temperature the trend is fitted on: the estimate as served ("causal") or, as
+    fogd-train fits a dequantised temperature, the mean of the estimate forwards and backwards in time."""
+    forwards = estimator(readings_c, resolution_c, rate_hz)
+    if fit == "causal":
+        return forwards
+    return 0.5 * (forwards + estimator(readings_c[::-1], resolution_c, rate_hz)[::-1])
+
+
 def evaluate(thermal: str, seed: int, names: list[str], resolution_c: float, sensor_hz: float,
-             rate_hz: float) -> dict[str, list[tuple[float, float, float]]]:  # fmt: skip
+             rate_hz: float, fit: str = "causal") -> dict[str, list[tuple[float, float, float]]]:  # fmt: skip
     """Per estimator, per held-out run: (added drift / floor, total drift / floor, estimate RMS error C)."""
     params = params_for("navigation", thermal, sensor_resolution_c=resolution_c, sensor_rate_hz=sensor_hz)
     calibration = [SimRun(name, seed + i, rate_hz, params) for i, name in enumerate(CALIBRATION)]
@@ -173,8 +184,8 @@ def evaluate(thermal: str, seed: int, names: list[str], resolution_c: float, sen
         results["true"].append((0.0, run.drift(run.true_error_dph - truth) / run.floor_dph, 0.0))
     for name in names:
         estimator = ESTIMATORS[name]
-        own = fitted_trend(calibration, [estimator(run.readings_c, resolution_c, rate_hz) for run in calibration],
-                           specs, rate_hz)  # fmt: skip
+        own = fitted_trend(calibration, [fit_temperature(estimator, run.readings_c, resolution_c, rate_hz, fit)
+                                         for run in calibration], specs, rate_hz)  # fmt: skip
         results[name] = []
         for run, truth in zip(held_out, truths):
             estimate_c = estimator(run.readings_c, resolution_c, rate_hz)
@@ -192,6 +203,9 @@ def main() -> None:
     parser.add_argument("--seeds", type=lambda text: [int(s) for s in text.split(",")], default=[1, 2],
                         help="comma-separated seeds, as accuracy_table.py's --seed (default 1,2)")
     parser.add_argument("--thermal", choices=THERMALS, action="append", help="only this coil structure (repeatable)")
+    parser.add_argument("--fit", choices=("causal", "smoothed"), default="causal",
+                        help="the total's trend fitted on the calibration runs' estimate as served (default), or on "
+                             "its mean forwards and backwards in time, as fogd-train fits a dequantised temperature")
     parser.add_argument("--estimators", type=lambda text: text.split(","), default=list(ESTIMATORS),
                         help="comma-separated, of: " + ", ".join(ESTIMATORS))
     args = parser.parse_args()
@@ -202,7 +216,8 @@ def main() -> None:
           f"coil trend ({DEFAULT_INPUTS_TEXT}) fitted on the calibration runs' true sensor temperature")
     print("# added: drift / floor of (trend on the estimate) - (trend on the true temperature); total: of the true "
           "error minus the trend "
-          "fitted on the calibration runs' estimate and served the estimate (fogd-train and the daemon without the SVR); rms: the estimate's error, C\n")
+          f"fitted on the calibration runs' estimate ({args.fit}) and served the estimate (fogd-train and the daemon "
+          "without the SVR); rms: the estimate's error, C\n")
     print("| seed | coil | estimator | added: " + " / ".join(HELD_OUT) + " | mean | total (own fit) | mean | rms C |")
     print("|---|---|---|---|---:|---|---:|---|")
     summary: dict[str, list[float]] = {}
@@ -210,7 +225,7 @@ def main() -> None:
     for seed in args.seeds:
         for thermal in args.thermal or THERMALS:
             started = time.perf_counter()
-            results = evaluate(thermal, seed, args.estimators, args.resolution_c, args.sensor_hz, args.rate_hz)
+            results = evaluate(thermal, seed, args.estimators, args.resolution_c, args.sensor_hz, args.rate_hz, args.fit)
             for name, values in results.items():
                 added = [v[0] for v in values]
                 total = [v[1] for v in values]
