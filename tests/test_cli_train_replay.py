@@ -67,3 +67,21 @@ def test_method_auto_prints_and_stores_the_selection(runs, tmp_path):
 def test_bad_options_give_one_line(runs, tmp_path, args, words):
     result = command("train", runs["paper-train"], "-o", tmp_path / "m.json", *args)
     assert result.returncode != 0 and words in result.stderr and "Traceback" not in result.stderr
+
+
+def test_a_whole_degree_run_is_fitted_from_the_offline_estimate_unless_asked(tmp_path):
+    """A KVH-like sensor (whole degrees at 1 Hz): fogd-train says how the dequantised inputs were fitted, and the
+    model file records it; --fit-temperature causal fits them as the daemon computes them."""
+    run = tmp_path / "whole.csv"
+    result = command("sim", "--profile", "cycle", "-o", run, "--rate-hz", "2", "--seed", 4,
+                     "--sensor-resolution-c", 1, "--sensor-rate-hz", 1)  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    for option, said, stored in (((), "fitted from its offline estimate", "smoothed"),
+                                 (("--fit-temperature", "causal"), "fitted as the daemon computes it", "as served")):
+        model = tmp_path / f"m-{stored}.json"
+        result = command("train", run, "-o", model, "--method", "linear", "--force", *option)
+        assert result.returncode == 0, result.stderr
+        assert said in result.stdout + result.stderr
+        document = json.loads(model.read_text())
+        assert document["training"]["fit_temperature"] == stored
+        assert all(spec.dequantise_c == 1.0 for spec in modelfile.load(model).inputs)

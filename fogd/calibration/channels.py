@@ -233,8 +233,11 @@ def summary(trained: Trained, unit: str = "deg/h") -> list[str]:
     lines = [f"{trained.fitted.method}: " + ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in hyper.items())]
     resolutions = {spec.dequantise_c for spec in trained.model.inputs} - {None}
     if resolutions:
+        smoothed = trained.document["training"].get("fit_temperature") == "smoothed"
         lines.append(f"inputs: {describe_inputs(trained.model.inputs)}: the sensor reports steps of "
-                     f"{', '.join(f'{value:g}' for value in resolutions)} C (--sensor-resolution-c 0: the readings)")
+                     f"{', '.join(f'{value:g}' for value in resolutions)} C (--sensor-resolution-c 0: the readings); "
+                     + ("fitted from its offline estimate (--fit-temperature causal: as the daemon computes it)"
+                        if smoothed else "fitted as the daemon computes it"))  # fmt: skip
     if trained.fitted.cv_rmse_dph is not None:
         lines.append(f"held-out (cv) drift RMSE: {trained.fitted.cv_rmse_dph:.3e} {unit} (about each run's mean), "
                      f"uncompensated {uncompensated_drift_dph(trained):.3e} {unit}")
