@@ -16,7 +16,7 @@ from fogd.calibration.selection import (
     table_lines,
 )
 from fogd.calibration.training import TrainConfig, prepare
-from fogd.core.inputs import default_inputs
+from fogd.core.inputs import DEFAULT_INPUTS_TEXT, default_inputs, dequantised, parse_inputs
 from fogd.core.runio import Run
 
 
@@ -106,9 +106,9 @@ def test_nested_score_predicts_each_run_from_the_others_with_clamped_inputs():
     assert abs(unclamped - expected) > 1e-6 * expected  # the clamp changed something
 
 
-def test_auto_on_a_whole_degree_sensor_scores_the_coarse_default():
-    """A KVH's whole degrees: the default input set becomes the coarse sensor's own (dequantised, fewer inputs
-    than the fine default) before the column roles are worked out (it raised an IndexError from the clamp)."""
+def test_auto_on_a_whole_degree_sensor_scores_the_dequantised_default():
+    """A KVH's whole degrees: the default input set is dequantised before the column roles are worked out (with
+    a coarse sensor's own, shorter, default it once raised an IndexError from the clamp)."""
     def whole(run: Run) -> Run:
         return dataclasses.replace(run, temp_c=np.round(run.temp_c))
 
@@ -116,5 +116,5 @@ def test_auto_on_a_whole_degree_sensor_scores_the_coarse_default():
     config = TrainConfig(block_s=100.0, fit=FitOptions(particles=4, iterations=2, progress=False))
     chosen, candidates = select(runs, config, input_sets(None, 0.5, 0.0), families=("ls-poly", "pso-svr"))
     assert candidates and all(spec.dequantise_c == 1.0 for c in candidates for spec in c.inputs)
-    assert {len(c.inputs) for c in candidates} == {6}  # temp,lags@30..3000/5, not the fine default's nine
+    assert {c.inputs for c in candidates} == {dequantised(parse_inputs(DEFAULT_INPUTS_TEXT), 1.0)}
     assert chosen in candidates
