@@ -7,7 +7,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fogd.calibration.models.coil import MIX_FLOOR, CoilTerms, fit_mix
+from fogd.calibration.models.coil import MIX_FLOOR, SIGNED_MIX_BOUND, CoilTerms, fit_mix
 from fogd.core.frozen import Svr
 
 unit = st.floats(0.0, 1.0, allow_nan=False)
@@ -52,3 +52,31 @@ def test_a_single_temperature_is_its_own_coil_temperature() -> None:
     xs = np.random.default_rng(1).normal(size=(40, 2))
     terms = fit_mix(xs, xs[:, 0] ** 3, None, (0,), degree=3)
     np.testing.assert_array_equal(terms.mix, [1.0, 0.0])
+
+
+def _lag(values: np.ndarray, tau: float) -> np.ndarray:
+    """A first-order lag of `tau` samples, started at the first value."""
+    out, state = np.empty_like(values), float(values[0])
+    for k, value in enumerate(values.tolist()):
+        state += (value - state) / tau
+        out[k] = state
+    return out
+
+
+def test_a_coil_layer_behind_a_chain_of_lags_gets_a_signed_mix() -> None:
+    """A layer that follows through two lags in a row is, over a bank of first-order lags, the partial-fraction
+    mix (tau_a lag_a - tau_b lag_b) / (tau_a - tau_b): a negative weight that no weighted mean can give."""
+    rng = np.random.default_rng(3)
+    n, runs, tau_a, tau_b = 3000, 3, 60.0, 20.0
+    temperature = np.cumsum(rng.normal(0.0, 1.0, n))
+    xs = np.c_[temperature, _lag(temperature, tau_a), _lag(temperature, tau_b)]
+    inner = _lag(xs[:, 2], tau_a)  # the layer: the temperature through tau_b, then through tau_a
+    xs, inner = (xs - 10.0) / 30.0, (inner - 10.0) / 30.0
+    groups = np.repeat(np.arange(runs), n // runs)
+    ys = 0.3 * inner**2 + 0.8 * inner**3 + np.array([1.0, -2.0, 0.5])[groups] + rng.normal(0.0, 1e-4, n)
+    terms = fit_mix(xs, ys, groups, (0, 1, 2), degree=3)
+    assert np.isclose(terms.mix.sum(), 1.0)
+    assert terms.mix.min() < 0.0
+    # the first-order lags' discrete-time partial fractions are close to the continuous ones (tau >> 1 sample)
+    np.testing.assert_allclose(terms.mix, [0.0, tau_a / (tau_a - tau_b), -tau_b / (tau_a - tau_b)], atol=0.1)
+    assert np.all(np.abs(terms.mix[1:]) <= SIGNED_MIX_BOUND + 1.0)

@@ -154,14 +154,15 @@ def train(runs: list[Run], config: TrainConfig, prepared: tuple[TrainingSet, flo
 
 def _name_coil_temperature(fitted: Fitted, specs: tuple[InputSpec, ...]) -> None:
     """Replace the coil trend's mix (weights of the scaled inputs) by what it means in degrees C, e.g.
-    '0.86 lag@300 + 0.14 lag@950', for the fit line, the report and the model file's training section."""
+    '0.86 lag@300 + 0.14 lag@950' (or, signed, '1.52 lag@448 - 0.52 lag@173'), for the fit line, the report and
+    the model file's training section."""
     mix = fitted.hyperparameters.pop("coil_mix", None)
     if mix is None:
         return
     raw = np.asarray(mix) / fitted.x_scale
     raw = raw / raw.sum()
-    fitted.hyperparameters["coil_temperature"] = " + ".join(
-        f"{weight:.2f} {spec.short}" for weight, spec in zip(raw, specs) if weight > 0)
+    text = " + ".join(f"{weight:.2f} {spec.short}" for weight, spec in zip(raw, specs) if weight != 0)
+    fitted.hyperparameters["coil_temperature"] = text.replace("+ -", "- ")  # a signed mix: '1.52 lag@448 - 0.52 lag@173'
 
 
 def options_for_inputs(options: FitOptions, specs: tuple[InputSpec, ...]) -> FitOptions:
