@@ -105,7 +105,9 @@ def evaluate(args, thermal: str, resolution_c: float, sensor_hz: float) -> dict[
             winner, _ = select(calibration, config, input_sets(None, 0.5, 0.0))
             trained, note = winner.trained, f"chose {winner.label}"
         else:
-            trained, note = train(calibration, config), ""
+            trained = train(calibration, config)
+            coil = trained.fitted.hyperparameters.get("coil_temperature")
+            note = f"(coil temperature {coil})" if coil else ""
         shown = label.replace(DEFAULT_INPUTS_TEXT, args.default_inputs or DEFAULT_INPUTS_TEXT)
         print(f"#   {shown}: {time.perf_counter() - started:.0f} s {note}", flush=True)
         tables = [replay_table(run, replay(trained.model, run), 100.0) for run in held_out]
@@ -145,6 +147,9 @@ def evaluate_imu(args, thermal: str, resolution_c: float, sensor_hz: float) -> d
             raise SystemExit(f"accuracy_table: {fit.channel}: {fit.error}")
         if fit.worse:
             print(f"#   {fit.channel}: fogd-train would refuse it: {fit.worse}", flush=True)
+        coil = fit.chosen.fitted.hyperparameters.get("coil_temperature") if fit.chosen else None
+        if coil:  # a signed mix (a minus sign) where the static curve sits deep in the coil
+            print(f"#   {fit.channel}: coil temperature {coil}", flush=True)
     models = {fit.channel: fit.chosen.model for fit in fits}
     replays = [replay_channels(models, run) for run in held_out]
     rows: dict[str, dict[str, list]] = {}
