@@ -4,11 +4,14 @@ mix of temperatures that carries the static curve, whatever each run's offset.""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from fogd.calibration.models import FitOptions
 from fogd.calibration.models.coil import MIX_FLOOR, SIGNED_MIX_BOUND, CoilTerms, fit_mix
 from fogd.core.frozen import Svr
+from fogd.errors import UsageError
 
 unit = st.floats(0.0, 1.0, allow_nan=False)
 
@@ -63,9 +66,8 @@ def _lag(values: np.ndarray, tau: float) -> np.ndarray:
     return out
 
 
-def test_a_coil_layer_behind_a_chain_of_lags_gets_a_signed_mix() -> None:
-    """A layer that follows through two lags in a row is, over a bank of first-order lags, the partial-fraction
-    mix (tau_a lag_a - tau_b lag_b) / (tau_a - tau_b): a negative weight that no weighted mean can give."""
+def _chain_rows() -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+    """Rows (the temperature, its lags of tau_a and tau_b samples) and a static cubic of a layer behind both lags."""
     rng = np.random.default_rng(3)
     n, runs, tau_a, tau_b = 3000, 3, 60.0, 20.0
     temperature = np.cumsum(rng.normal(0.0, 1.0, n))
@@ -74,9 +76,30 @@ def test_a_coil_layer_behind_a_chain_of_lags_gets_a_signed_mix() -> None:
     xs, inner = (xs - 10.0) / 30.0, (inner - 10.0) / 30.0
     groups = np.repeat(np.arange(runs), n // runs)
     ys = 0.3 * inner**2 + 0.8 * inner**3 + np.array([1.0, -2.0, 0.5])[groups] + rng.normal(0.0, 1e-4, n)
+    return xs, ys, groups, tau_a, tau_b
+
+
+def test_a_coil_layer_behind_a_chain_of_lags_gets_a_signed_mix() -> None:
+    """A layer that follows through two lags in a row is, over a bank of first-order lags, the partial-fraction
+    mix (tau_a lag_a - tau_b lag_b) / (tau_a - tau_b): a negative weight that no weighted mean can give."""
+    xs, ys, groups, tau_a, tau_b = _chain_rows()
     terms = fit_mix(xs, ys, groups, (0, 1, 2), degree=3)
     assert np.isclose(terms.mix.sum(), 1.0)
     assert terms.mix.min() < 0.0
     # the first-order lags' discrete-time partial fractions are close to the continuous ones (tau >> 1 sample)
     np.testing.assert_allclose(terms.mix, [0.0, tau_a / (tau_a - tau_b), -tau_b / (tau_a - tau_b)], atol=0.1)
     assert np.all(np.abs(terms.mix[1:]) <= SIGNED_MIX_BOUND + 1.0)
+
+
+def test_the_mix_can_be_forced_either_way() -> None:
+    """`mix="mean"` keeps the weighted mean where the signed mix fits better, `mix="signed"` gives the signed one;
+    any other choice is refused, by fit_mix and by FitOptions alike."""
+    xs, ys, groups, _, _ = _chain_rows()
+    mean = fit_mix(xs, ys, groups, (0, 1, 2), degree=3, mix="mean")
+    assert np.isclose(mean.mix.sum(), 1.0) and mean.mix.min() >= 0.0
+    signed = fit_mix(xs, ys, groups, (0, 1, 2), degree=3, mix="signed")
+    assert signed.mix.min() < 0.0
+    with pytest.raises(ValueError, match="coil mix"):
+        fit_mix(xs, ys, groups, (0, 1, 2), mix="negative")
+    with pytest.raises(UsageError, match="coil mix"):
+        FitOptions(coil_mix="negative")

@@ -16,6 +16,7 @@ from fogd.calibration.channels import (
     unit_document,
 )
 from fogd.calibration.models import FITNESSES, METHODS, FitOptions
+from fogd.calibration.models.coil import MIXES
 from fogd.calibration.models.least_squares import POLY_TERMS
 from fogd.calibration.models.svr import TRENDS
 from fogd.calibration.runcheck import check_calibration_run
@@ -115,6 +116,13 @@ def parser() -> ArgumentParser:
         "the static nonlinearity), 'poly' (powers up to 3 of each temperature that follows the coil), "
         "'linear' (IEEE 952), or 'none' for the paper's plain SVR (default coil)",
     )  # fmt: skip
+    p.add_argument(
+        "--coil-mix", choices=MIXES, default="auto",
+        help="the coil trend's coil temperature over the temperature inputs: 'mean' (a weighted mean: a layer "
+        "that follows the sensor through one lag), 'signed' (weights of either sign summing to 1: a layer deep in "
+        "the coil, behind a chain of lags), or 'auto' (the signed mix where it leaves 3%% less residual on the "
+        "calibration blocks, else the mean; default)",
+    )  # fmt: skip
     p.add_argument("--particles", type=positive_int, default=None,
                    help=f"PSO population (default 60 as the paper; {AUTO_PARTICLES} inside --method auto)")
     p.add_argument("--iterations", type=positive_int, default=None,
@@ -200,7 +208,8 @@ def body(argv: Sequence[str] | None) -> int:
         reference=_reference(args.reference),
         fit=FitOptions(
             degree=args.degree, poly_terms=args.poly_terms, particles=particles, iterations=iterations, c1=args.c1, c2=args.c2,
-            fitness=args.fitness, trend=args.trend, folds=args.folds, n_jobs=args.jobs, seed=args.seed, progress=not args.quiet,
+            fitness=args.fitness, trend=args.trend, coil_mix=args.coil_mix, folds=args.folds, n_jobs=args.jobs,
+            seed=args.seed, progress=not args.quiet,
         ),  # fmt: skip
         name=args.name,
         sensor_resolution_c=args.sensor_resolution_c,

@@ -18,9 +18,10 @@ one of tau_b is (tau_a lag_a - tau_b lag_b) / (tau_a - tau_b)). The signed mix (
 free one within +-SIGNED_MIX_BOUND so that no large cancelling pair reads noise) replaces the mean only where it
 leaves at least SIGNED_MIX_GAIN less residual on the calibration blocks: a static curve taken deep in the coil.
 Where the mean describes the blocks as well, the extra freedom only fits their noise and a ramp four times
-faster than calibration pays for it (tools/accuracy_table.py --quick, fine sensor, seeds 2 and 3: the z gyro's
-worst held-out run 1.20-1.64x the noise floor with the mean, 1.51-1.97x with the signed mix everywhere). With
-the choice, `--imu` seed 1 lumped: accel_z_g's worst run 3.85 -> 1.82x, accel_y_g's 2.47 -> 1.33x.
+faster than calibration pays for it (tools/accuracy_table.py --quick --schemes default, fine sensor, seeds 2
+and 3: the z gyro's worst held-out run 1.20-1.64x the noise floor with the mean, 1.51-1.97x with
+`--coil-mix signed`). With the choice, `--imu` seed 1 lumped: accel_z_g's worst run 3.85 -> 1.82x, accel_y_g's
+2.47 -> 1.33x.
 
 Fitting powers of every lagged temperature on their own (the "poly" trend) lets differences of cubes of
 nearby lags stand in for the coil's rate on calibration ramps, which extrapolates badly to faster ones
@@ -42,6 +43,7 @@ from fogd.core.errorstats import centred_within_runs
 MIX_FLOOR = 1e-3  # mix weights smaller than this are dropped (and the rest renormalised): fewer monomials to serve
 SIGNED_MIX_BOUND = 1.0  # the signed mix's free weights stay within +-this (its largest weight is 1 minus their sum)
 SIGNED_MIX_GAIN = 0.03  # the signed mix must leave this share less residual RMS than the mean to replace it
+MIXES = ("auto", "mean", "signed")  # fit_mix's choice: the gate above, the weighted mean, or the signed mix
 _MAX_EVALUATIONS = 400
 
 
@@ -73,16 +75,20 @@ class CoilTerms:
 
 
 def fit_mix(xs: np.ndarray, ys: np.ndarray, groups: np.ndarray | None, candidates: tuple[int, ...],
-            degree: int = 3) -> CoilTerms:  # fmt: skip
+            degree: int = 3, mix: str = "auto") -> CoilTerms:  # fmt: skip
     """The coil-temperature mix over the `candidates` columns (the temperature inputs) that makes the trend fit
     the scaled rows best, one offset per run: a weighted mean, or a signed mix where it fits SIGNED_MIX_GAIN
-    better (the module's docstring)."""
+    better (`mix` "auto", the module's docstring); `mix` "mean" or "signed" forces one."""
+    if mix not in MIXES:
+        raise ValueError(f"unknown coil mix {mix!r}: choose one of {', '.join(MIXES)}")
     xs = np.asarray(xs, dtype=np.float64)
     candidates = tuple(candidates)
     mean = _fit_mean_mix(xs, ys, groups, candidates, degree)
-    if len(candidates) == 1:
+    if len(candidates) == 1 or mix == "mean":
         return mean
     signed = _fit_signed_mix(xs, ys, groups, candidates, degree, mean)
+    if mix == "signed":
+        return signed
     better = _residual_rms(signed, xs, ys, groups) < (1.0 - SIGNED_MIX_GAIN) * _residual_rms(mean, xs, ys, groups)
     return signed if better else mean
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from sklearn.exceptions import ConvergenceWarning
 
-from fogd.calibration.models.coil import CoilTerms, fit_mix
+from fogd.calibration.models.coil import MIXES, CoilTerms, fit_mix
 from fogd.calibration.models.folds import folds, held_out_rmse
 from fogd.calibration.models.least_squares import (
     POLY_TERMS,
@@ -43,6 +43,7 @@ class FitOptions:
     static_columns: tuple[int, ...] = (0,)  # the temperatures that follow the coil (powers in the "poly" trend)
     shifted_columns: tuple[int, ...] = ()  # temperatures the domain clamp moves together (fogd.core.inputs.clamp_rows)
     trend_degree: int = 3  # the "coil" and "poly" trends' highest power
+    coil_mix: str = "auto"  # the "coil" trend's coil temperature: "auto", "mean" or "signed" (fogd.calibration.models.coil)
     kernel_columns: tuple[int, ...] | None = None  # pso-svr over a trend: the inputs its kernel reads (None: every one)
     particles: int = 60
     iterations: int = 100
@@ -61,6 +62,8 @@ class FitOptions:
             self.trend = "linear" if self.trend else "none"
         if self.trend not in TRENDS:
             raise UsageError(f"unknown trend {self.trend!r}: choose one of {', '.join(TRENDS)}")
+        if self.coil_mix not in MIXES:
+            raise UsageError(f"unknown coil mix {self.coil_mix!r}: choose one of {', '.join(MIXES)}")
 
 
 @dataclass
@@ -154,7 +157,7 @@ def trend_terms(xs: np.ndarray, ys: np.ndarray, groups: np.ndarray, options: Fit
     every fold and particle), the "poly" trend's monomials (every input linear, the static columns up to
     `trend_degree`), or None (linear; also the coil trend's when no input is a temperature)."""
     if options.trend == "coil" and options.temperature_columns:
-        return fit_mix(xs, ys, groups, options.temperature_columns, options.trend_degree)
+        return fit_mix(xs, ys, groups, options.temperature_columns, options.trend_degree, options.coil_mix)
     if options.trend == "poly":
         return temperature_powers(xs.shape[1], options.trend_degree, options.static_columns)
     return None
