@@ -34,7 +34,7 @@ import numpy as np
 
 from fogd.calibration.channels import Settings, channel_jobs, fit_channels
 from fogd.calibration.models import FitOptions
-from fogd.calibration.models.coil import MIXES
+from fogd.calibration.models.coil import MIXES, SIGNED_MIX_GAIN
 from fogd.calibration.replay import replay, replay_channels, replay_table
 from fogd.calibration.selection import (
     AUTO_ITERATIONS,
@@ -248,7 +248,7 @@ def main() -> None:
                              "or as the daemon computes it")
     parser.add_argument("--coil-mix", choices=MIXES, default="auto",
                         help="as fogd-train's: the coil trend's coil temperature, a weighted mean, a signed mix, or "
-                             "the signed mix where it fits the calibration blocks 3%% better (default auto)")
+                             f"the signed mix where it fits the calibration blocks {SIGNED_MIX_GAIN * 100:g} %% better (default auto)")
     parser.add_argument("--bound", action="store_true",
                         help="print tools/quantisation_bound.py's lower bound for each held-out run, and the default over it")
     parser.add_argument("--quick", action="store_true", help="PSO 20 x 20 instead of the paper's 60 x 100, 10 x 10 inside auto")

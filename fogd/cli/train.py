@@ -16,7 +16,7 @@ from fogd.calibration.channels import (
     unit_document,
 )
 from fogd.calibration.models import FITNESSES, METHODS, FitOptions
-from fogd.calibration.models.coil import MIXES
+from fogd.calibration.models.coil import MIXES, SIGNED_MIX_GAIN
 from fogd.calibration.models.least_squares import POLY_TERMS
 from fogd.calibration.models.svr import TRENDS
 from fogd.calibration.runcheck import check_calibration_run
@@ -120,8 +120,8 @@ def parser() -> ArgumentParser:
         "--coil-mix", choices=MIXES, default="auto",
         help="the coil trend's coil temperature over the temperature inputs: 'mean' (a weighted mean: a layer "
         "that follows the sensor through one lag), 'signed' (weights of either sign summing to 1: a layer deep in "
-        "the coil, behind a chain of lags), or 'auto' (the signed mix where it leaves 3%% less residual on the "
-        "calibration blocks, else the mean; default)",
+        "the coil, behind a chain of lags), or 'auto' (the signed mix where it leaves "
+        f"{SIGNED_MIX_GAIN * 100:g} %% less residual on the calibration blocks, else the mean; default)",
     )  # fmt: skip
     p.add_argument("--particles", type=positive_int, default=None,
                    help=f"PSO population (default 60 as the paper; {AUTO_PARTICLES} inside --method auto)")

@@ -82,15 +82,16 @@ def fit_mix(xs: np.ndarray, ys: np.ndarray, groups: np.ndarray | None, candidate
     if mix not in MIXES:
         raise ValueError(f"unknown coil mix {mix!r}: choose one of {', '.join(MIXES)}")
     xs = np.asarray(xs, dtype=np.float64)
+    centred_y = centred_within_runs(ys, groups)
     candidates = tuple(candidates)
-    mean = _fit_mean_mix(xs, ys, groups, candidates, degree)
+    mean = _fit_mean_mix(xs, centred_y, groups, candidates, degree)
     if len(candidates) == 1 or mix == "mean":
         return mean
-    signed = _fit_signed_mix(xs, ys, groups, candidates, degree, mean)
+    signed = _fit_signed_mix(xs, centred_y, groups, candidates, degree, mean)
     if mix == "signed":
         return signed
-    better = _residual_rms(signed, xs, ys, groups) < (1.0 - SIGNED_MIX_GAIN) * _residual_rms(mean, xs, ys, groups)
-    return signed if better else mean
+    left_signed, left_mean = (np.linalg.norm(_residual(terms, xs, centred_y, groups)) for terms in (signed, mean))
+    return signed if left_signed < (1.0 - SIGNED_MIX_GAIN) * left_mean else mean  # same rows: norms compare as RMS
 
 
 def _residual(terms: CoilTerms, xs: np.ndarray, centred_y: np.ndarray, groups: np.ndarray | None) -> np.ndarray:
@@ -99,25 +100,18 @@ def _residual(terms: CoilTerms, xs: np.ndarray, centred_y: np.ndarray, groups: n
     return centred_y - features @ np.linalg.lstsq(features, centred_y, rcond=None)[0]
 
 
-def _residual_rms(terms: CoilTerms, xs: np.ndarray, ys: np.ndarray, groups: np.ndarray | None) -> float:
-    residual = _residual(terms, xs, centred_within_runs(ys, groups), groups)
-    return float(np.sqrt(np.mean(residual**2)))
-
-
 def _with_floor(mix: np.ndarray, degree: int) -> CoilTerms:
     mix = mix.copy()
     mix[np.abs(mix) < MIX_FLOOR] = 0.0
     return CoilTerms(mix / mix.sum(), degree)
 
 
-def _fit_mean_mix(xs: np.ndarray, ys: np.ndarray, groups: np.ndarray | None, candidates: tuple[int, ...],
+def _fit_mean_mix(xs: np.ndarray, centred_y: np.ndarray, groups: np.ndarray | None, candidates: tuple[int, ...],
                   degree: int) -> CoilTerms:  # fmt: skip
     """The weighted mean: weights through a softmax, so they stay non-negative and sum to 1."""
     from scipy.optimize import (
         least_squares,  # calibration only: the daemon never imports scipy
     )
-
-    centred_y = centred_within_runs(ys, groups)
 
     def terms(logits: np.ndarray) -> CoilTerms:
         weights = np.exp(logits - logits.max())
@@ -132,13 +126,12 @@ def _fit_mean_mix(xs: np.ndarray, ys: np.ndarray, groups: np.ndarray | None, can
     return _with_floor(terms(solution.x).mix, degree)
 
 
-def _fit_signed_mix(xs: np.ndarray, ys: np.ndarray, groups: np.ndarray | None, candidates: tuple[int, ...],
+def _fit_signed_mix(xs: np.ndarray, centred_y: np.ndarray, groups: np.ndarray | None, candidates: tuple[int, ...],
                     degree: int, start: CoilTerms) -> CoilTerms:  # fmt: skip
     """The signed mix, from the mean's: the weight that is largest there is 1 minus the others, and the others
     stay within +-SIGNED_MIX_BOUND."""
     from scipy.optimize import least_squares
 
-    centred_y = centred_within_runs(ys, groups)
     columns = list(candidates)
     first = start.mix[columns]
     largest = int(np.argmax(first))
