@@ -9,7 +9,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fogd.calibration.models import FitOptions
-from fogd.calibration.models.coil import MIX_FLOOR, SIGNED_MIX_BOUND, CoilTerms, fit_mix
+from fogd.calibration.models.coil import (
+    MIX_FLOOR,
+    SIGNED_MIX_BOUND,
+    CoilTerms,
+    fit_mix,
+    fit_rate_prior,
+    rate_prior_rows,
+)
+from fogd.calibration.models.least_squares import RunOffsetLeastSquares
 from fogd.core.frozen import Svr
 from fogd.errors import UsageError
 
@@ -103,3 +111,82 @@ def test_the_mix_can_be_forced_either_way() -> None:
         fit_mix(xs, ys, groups, (0, 1, 2), mix="negative")
     with pytest.raises(UsageError, match="coil mix"):
         FitOptions(coil_mix="negative")
+
+
+def _bank_rows(seed: int, rate_coef: np.ndarray, noise: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Scaled rows of a temperature and its lags (TAUS samples), a target that is the lagged rates times
+    `rate_coef` plus a static cubic, three run offsets and `noise`; and each lag column's tau / scale."""
+    rng = np.random.default_rng(seed)
+    n = 3000
+    temperature = np.cumsum(rng.normal(0.0, 1.0, n))
+    lags = np.column_stack([_lag(temperature, tau) for tau in TAUS])
+    rates = (temperature[:, None] - lags) / TAUS  # a lag's rate of change, d lag/dt = (T - lag) / tau
+    raw = np.column_stack((temperature, lags))
+    mean, scale = raw.mean(axis=0), raw.std(axis=0)
+    xs = (raw - mean) / scale
+    groups = np.repeat(np.arange(3), n // 3)
+    ys = rates @ rate_coef + 0.2 * xs[:, 0] ** 3 + np.array([1.0, -2.0, 0.5])[groups] + rng.normal(0.0, noise, n)
+    return xs, ys, groups, np.r_[0.0, TAUS] / scale
+
+
+TAUS = np.array([4.0, 10.0, 25.0, 60.0, 150.0])
+
+
+def _rate_coef(coef: np.ndarray, lag_rates: np.ndarray) -> np.ndarray:
+    """The fitted trend's lag coefficients on the lagged rates (rate_prior_rows' docstring)."""
+    columns = np.flatnonzero(lag_rates)
+    return -coef[columns] * lag_rates[columns]
+
+
+def test_the_rate_prior_sees_only_curvature_along_the_bank() -> None:
+    """Coefficients whose lagged-rate form is a straight line along the bank are not penalised at all; a bend
+    is; a bank of two lags has nothing to smooth."""
+    terms = CoilTerms(np.array([1.0, 0.0, 0.0, 0.0, 0.0, 0.0]), 3)
+    lag_rates = np.array([0.0, 2.0, 5.0, 11.0, 30.0, 70.0])
+    rows = rate_prior_rows(terms, lag_rates)
+    assert rows.shape == (3, terms.columns)
+    straight = np.zeros(terms.columns)
+    straight[1:6] = -(0.5 + 0.25 * np.arange(5)) / lag_rates[1:]  # rate coefficients 0.5, 0.75, .. 1.5
+    straight[[0, 6, 7]] = (3.0, -1.0, 2.0)  # the temperature and the static curve: not the prior's business
+    np.testing.assert_allclose(rows @ straight, 0.0, atol=1e-12)
+    bent = straight.copy()
+    bent[3] -= 1.0 / lag_rates[3]
+    assert np.linalg.norm(rows @ bent) > 0.5
+    assert rate_prior_rows(terms, np.array([0.0, 2.0, 5.0, 0.0, 0.0, 0.0])).shape == (0, terms.columns)
+
+
+def test_the_rate_prior_pulls_noisy_rate_coefficients_towards_a_smooth_truth() -> None:
+    """With noisy targets, the prior's fit is closer than plain least squares to the truth's lagged-rate
+    coefficients on every seed, whether the truth is a straight line along the bank (what the prior does not
+    penalise: about half the error on average) or a gentle arch."""
+    for truth in (np.array([1.0, 1.5, 2.0, 2.5, 3.0]), np.array([2.0, 3.0, 3.5, 3.0, 2.0])):
+        ratios = []
+        for seed in range(4):
+            xs, ys, groups, lag_rates = _bank_rows(seed, truth, noise=0.5)
+            plain = fit_mix(xs, ys, groups, (0,), degree=3)
+            prior = fit_rate_prior(plain, xs, ys, groups, lag_rates)
+            assert prior.penalty_rows is not None and prior.penalty_rows.shape == (3, plain.columns)
+            plain_error, prior_error = (
+                np.linalg.norm(_rate_coef(RunOffsetLeastSquares(terms).fit(xs, ys, groups).coef_, lag_rates) - truth)
+                for terms in (plain, prior))  # fmt: skip
+            assert prior_error < plain_error, (truth, seed)
+            ratios.append(prior_error / plain_error)
+        if truth[0] == 1.0:
+            assert np.mean(ratios) < 0.6, ratios
+
+
+def test_the_rate_prior_leaves_a_bend_the_data_pin_down() -> None:
+    """A truth far from smooth along the bank, measured with little noise: the strength chosen is weak enough
+    to keep it (the same coefficients as plain least squares, within a few percent of the bend)."""
+    truth = np.array([4.0, -3.0, 5.0, -2.0, 3.0])
+    xs, ys, groups, lag_rates = _bank_rows(11, truth, noise=1e-3)
+    plain = fit_mix(xs, ys, groups, (0,), degree=3)
+    prior = fit_rate_prior(plain, xs, ys, groups, lag_rates)
+    fitted = _rate_coef(RunOffsetLeastSquares(prior).fit(xs, ys, groups).coef_, lag_rates)
+    np.testing.assert_allclose(fitted, truth, atol=0.3)
+
+
+def test_the_rate_prior_is_an_option() -> None:
+    with pytest.raises(UsageError, match="rate prior"):
+        FitOptions(rate_prior="ridge")
+    assert FitOptions().rate_prior == "smooth"

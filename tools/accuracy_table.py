@@ -34,7 +34,7 @@ import numpy as np
 
 from fogd.calibration.channels import Settings, channel_jobs, fit_channels
 from fogd.calibration.models import FitOptions
-from fogd.calibration.models.coil import MIXES, SIGNED_MIX_GAIN
+from fogd.calibration.models.coil import MIXES, PRIORS, SIGNED_MIX_GAIN
 from fogd.calibration.replay import replay, replay_channels, replay_table
 from fogd.calibration.selection import (
     AUTO_ITERATIONS,
@@ -98,7 +98,8 @@ def evaluate(args, thermal: str, resolution_c: float, sensor_hz: float) -> dict[
     for label, method, inputs, fitness, trend, guard in selected_schemes(args):
         swarm = auto_size if method == "auto" else size
         options = FitOptions(particles=swarm[0], iterations=swarm[1], fitness=fitness, trend=trend, n_jobs=args.jobs,
-                             seed=args.seed, progress=False, coil_mix=args.coil_mix)  # fmt: skip
+                             seed=args.seed, progress=False, coil_mix=args.coil_mix,
+                             rate_prior=args.rate_prior)  # fmt: skip
         config = TrainConfig(method=method, inputs=parse_inputs(inputs) if inputs else default_inputs(),
                              fit=options, domain_guard=guard, smoothed_fit=args.fit_temperature == "smoothed")  # fmt: skip
         started = time.perf_counter()
@@ -137,7 +138,7 @@ def evaluate_imu(args, thermal: str, resolution_c: float, sensor_hz: float) -> d
     held_out = [simulated_imu_run(name, args.seed + 100 + i, args.rate_hz, params) for i, name in enumerate(HELD_OUT)]
     size = (20, 20) if args.quick else (60, 100)
     options = FitOptions(particles=size[0], iterations=size[1], n_jobs=args.jobs, seed=args.seed, progress=False,
-                         coil_mix=args.coil_mix)  # fmt: skip
+                         coil_mix=args.coil_mix, rate_prior=args.rate_prior)  # fmt: skip
     config = TrainConfig(inputs=parse_inputs(args.default_inputs or DEFAULT_INPUTS_TEXT), fit=options,
                          smoothed_fit=args.fit_temperature == "smoothed")  # fogd-train's defaults: pso-svr, coil trend, cv
     settings = Settings(config, [config.inputs], log=False)
@@ -249,6 +250,8 @@ def main() -> None:
     parser.add_argument("--coil-mix", choices=MIXES, default="auto",
                         help="as fogd-train's: the coil trend's coil temperature, a weighted mean, a signed mix, or "
                              f"the signed mix where it fits the calibration blocks {SIGNED_MIX_GAIN * 100:g} %% better (default auto)")
+    parser.add_argument("--rate-prior", choices=PRIORS, default="smooth",
+                        help="as fogd-train's: the coil trend's prior on its lags' rate coefficients (default smooth)")
     parser.add_argument("--bound", action="store_true",
                         help="print tools/quantisation_bound.py's lower bound for each held-out run, and the default over it")
     parser.add_argument("--quick", action="store_true", help="PSO 20 x 20 instead of the paper's 60 x 100, 10 x 10 inside auto")

@@ -28,6 +28,7 @@ from fogd.core.inputs import (
     dequantises,
     dynamic_inputs,
     kernel_columns,
+    lag_taus_s,
     parse_inputs,
     shifted_columns,
     static_columns,
@@ -170,7 +171,7 @@ def options_for_inputs(options: FitOptions, specs: tuple[InputSpec, ...]) -> Fit
     the inputs a kernel reads."""
     return dataclasses.replace(options, temperature_columns=temperature_columns(specs),
                                static_columns=static_columns(specs), shifted_columns=shifted_columns(specs),
-                               kernel_columns=kernel_columns(specs))  # fmt: skip
+                               kernel_columns=kernel_columns(specs), lag_taus_s=lag_taus_s(specs))  # fmt: skip
 
 
 def domain_guard_document(data: TrainingSet, error: np.ndarray, fitted: Fitted, options: FitOptions,

@@ -16,7 +16,7 @@ from fogd.calibration.channels import (
     unit_document,
 )
 from fogd.calibration.models import FITNESSES, METHODS, FitOptions
-from fogd.calibration.models.coil import MIXES, SIGNED_MIX_GAIN
+from fogd.calibration.models.coil import MIXES, PRIORS, SIGNED_MIX_GAIN
 from fogd.calibration.models.least_squares import POLY_TERMS
 from fogd.calibration.models.svr import TRENDS
 from fogd.calibration.runcheck import check_calibration_run
@@ -123,6 +123,11 @@ def parser() -> ArgumentParser:
         "the coil, behind a chain of lags), or 'auto' (the signed mix where it leaves "
         f"{SIGNED_MIX_GAIN * 100:g} %% less residual on the calibration blocks, else the mean; default)",
     )  # fmt: skip
+    p.add_argument(
+        "--rate-prior", choices=PRIORS, default="smooth",
+        help="the coil trend's lag coefficients: 'smooth' (a prior that they vary smoothly along the bank as "
+        "rates, its strength the calibration blocks' most likely; default) or 'none' (plain least squares)",
+    )  # fmt: skip
     p.add_argument("--particles", type=positive_int, default=None,
                    help=f"PSO population (default 60 as the paper; {AUTO_PARTICLES} inside --method auto)")
     p.add_argument("--iterations", type=positive_int, default=None,
@@ -208,8 +213,8 @@ def body(argv: Sequence[str] | None) -> int:
         reference=_reference(args.reference),
         fit=FitOptions(
             degree=args.degree, poly_terms=args.poly_terms, particles=particles, iterations=iterations, c1=args.c1, c2=args.c2,
-            fitness=args.fitness, trend=args.trend, coil_mix=args.coil_mix, folds=args.folds, n_jobs=args.jobs,
-            seed=args.seed, progress=not args.quiet,
+            fitness=args.fitness, trend=args.trend, coil_mix=args.coil_mix, rate_prior=args.rate_prior, folds=args.folds,
+            n_jobs=args.jobs, seed=args.seed, progress=not args.quiet,
         ),  # fmt: skip
         name=args.name,
         sensor_resolution_c=args.sensor_resolution_c,

@@ -225,6 +225,11 @@ def temperature_columns(specs: tuple[InputSpec, ...]) -> tuple[int, ...]:
     return tuple(i for i, spec in enumerate(specs) if spec.kind in (TEMP, TEMP_LAG))
 
 
+def lag_taus_s(specs: tuple[InputSpec, ...]) -> tuple[float, ...]:
+    """Each input's lag time constant in s, 0 for the inputs that are not lagged temperatures."""
+    return tuple(float(spec.tau_s) if spec.kind == TEMP_LAG else 0.0 for spec in specs)
+
+
 def dequantises(specs: tuple[InputSpec, ...]) -> bool:
     """Whether some input is computed from a coarse sensor's dequantised estimate."""
     return any(spec.dequantise_c is not None for spec in specs)

@@ -23,6 +23,19 @@ and 3: the z gyro's worst held-out run 1.20-1.64x the noise floor with the mean,
 `--coil-mix signed`). With the choice, `--imu` seed 1 lumped: accel_z_g's worst run 3.85 -> 1.82x, accel_y_g's
 2.47 -> 1.33x.
 
+The lag coefficients carry the coil's dynamics, and calibration ramps (20-24 C/h) pin down only part of them:
+the gyro's noise in the calibration blocks moves the rest, which a ramp four times faster reads. A ridge
+towards zero cannot help (the coefficients of a lag bank are large and of alternating sign by nature). The
+rate prior works in another basis: a lag of tau s is the temperature minus tau times the same lag of the
+temperature's rate, so the bank's linear part is the temperature plus a coefficient per lagged rate, and a
+coil's response spreads over neighbouring time constants. The prior penalises the second differences of those
+rate coefficients along the bank (a straight line along it costs nothing), at the strength that maximises the
+calibration blocks' marginal likelihood (the noise variance profiled out), chosen once like the mix. On
+tools/accuracy_table.py --quick --sensor fine --schemes default, seeds 1-5, `--rate-prior none` against the
+default: the diffusive coil's worst held-out run 1.36 / 1.51 / 1.64 / 1.66 / 1.50 -> 1.37 / 1.42 / 1.38 / 1.54 /
+1.46x the noise floor; the lumped coil's, whose fitted lags alternate at the fast end to undo the sensor's own
+lag, 1.12 / 1.20 / 1.60 / 1.29 / 1.38 -> 1.14 / 1.25 / 1.56 / 1.22 / 1.47x; whole degrees within 2 % either way.
+
 Fitting powers of every lagged temperature on their own (the "poly" trend) lets differences of cubes of
 nearby lags stand in for the coil's rate on calibration ramps, which extrapolates badly to faster ones
 (tools/accuracy_table.py --quick, fine sensor, worst held-out run: 1.58x the noise floor on the lumped coil
@@ -34,7 +47,7 @@ nine-input lag bank: per sample the daemon forms q and eleven terms (tools/bench
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -44,6 +57,8 @@ MIX_FLOOR = 1e-3  # mix weights smaller than this are dropped (and the rest reno
 SIGNED_MIX_BOUND = 1.0  # the signed mix's free weights stay within +-this (its largest weight is 1 minus their sum)
 SIGNED_MIX_GAIN = 0.03  # the signed mix must leave this share less residual RMS than the mean to replace it
 MIXES = ("auto", "mean", "signed")  # fit_mix's choice: the gate above, the weighted mean, or the signed mix
+PRIOR_STRENGTHS = np.geomspace(1e-9, 1e-1, 33)  # the rate prior's strengths tried, relative to the features' scale
+PRIORS = ("smooth", "none")  # the coil trend's rate prior (fit_rate_prior), or plain least squares
 _MAX_EVALUATIONS = 400
 
 
@@ -53,6 +68,8 @@ class CoilTerms:
 
     mix: np.ndarray  # one weight per input, >= 0, summing to 1 (zero for inputs that are not temperatures)
     degree: int = 3
+    # rows A of the fit's penalty |A coef|^2 (fit_rate_prior), or None: plain least squares
+    penalty_rows: np.ndarray | None = field(default=None, compare=False, repr=False)
 
     def __call__(self, xs: np.ndarray) -> np.ndarray:
         xs = np.asarray(xs, dtype=np.float64)
@@ -147,3 +164,44 @@ def _fit_signed_mix(xs: np.ndarray, centred_y: np.ndarray, groups: np.ndarray | 
                              np.clip(first[free], -SIGNED_MIX_BOUND, SIGNED_MIX_BOUND),
                              bounds=(-SIGNED_MIX_BOUND, SIGNED_MIX_BOUND), max_nfev=_MAX_EVALUATIONS)  # fmt: skip
     return _with_floor(terms(solution.x).mix, degree)
+
+
+def rate_prior_rows(terms: CoilTerms, lag_rates: np.ndarray) -> np.ndarray:
+    """The rate prior's rows over the trend's features, before its strength: second differences, along the bank,
+    of the lags' coefficients in the lagged-rate basis.
+
+    A lag of tau s is the temperature minus tau times its own lag of the temperature's rate (d lag/dt =
+    (T - lag) / tau), so the trend's coefficient b_i of the scaled lag i is, on the lagged rate, c_i = -b_i
+    tau_i / scale_i: `lag_rates` holds tau_i / scale_i for each lag column (0 for the other inputs), in the
+    bank's order. Rows for fewer than three lags: none (nothing to smooth)."""
+    columns = np.flatnonzero(lag_rates)
+    if columns.size < 3:
+        return np.zeros((0, terms.columns))
+    to_rates = np.zeros((columns.size, terms.columns))
+    to_rates[np.arange(columns.size), columns] = -lag_rates[columns]
+    return np.diff(np.eye(columns.size), 2, axis=0) @ to_rates
+
+
+def fit_rate_prior(terms: CoilTerms, xs: np.ndarray, ys: np.ndarray, groups: np.ndarray | None,
+                   lag_rates: np.ndarray) -> CoilTerms:  # fmt: skip
+    """`terms` with the rate prior's penalty at the strength that maximises the calibration blocks' marginal
+    likelihood (module docstring); unchanged where the bank has fewer than three lags."""
+    rows = rate_prior_rows(terms, np.asarray(lag_rates, dtype=np.float64))
+    if rows.shape[0] == 0:
+        return terms
+    features = centred_within_runs(terms(xs), groups)
+    centred_y = centred_within_runs(np.asarray(ys, dtype=np.float64), groups)
+    gram, prior = features.T @ features, rows.T @ rows
+    dof = centred_y.size - (1 if groups is None else np.unique(groups).size) - (terms.columns - rows.shape[0])
+    unit = np.trace(gram) / np.trace(prior)
+    best_score, best_strength = np.inf, 0.0
+    for strength in unit * PRIOR_STRENGTHS:
+        system = gram + strength * prior
+        coef = np.linalg.solve(system, features.T @ centred_y)
+        penalised_rss = float(np.sum((centred_y - features @ coef) ** 2) + strength * coef @ prior @ coef)
+        # -2 log evidence with the noise variance profiled out, up to a constant (a Gaussian prior on the rows'
+        # second differences, flat on what they do not see): Wahba / REML's criterion for a penalised fit
+        score = dof * np.log(penalised_rss) + np.linalg.slogdet(system)[1] - rows.shape[0] * np.log(strength)
+        if score < best_score:
+            best_score, best_strength = score, strength
+    return replace(terms, penalty_rows=np.sqrt(best_strength) * rows)

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from sklearn.exceptions import ConvergenceWarning
 
-from fogd.calibration.models.coil import MIXES, CoilTerms, fit_mix
+from fogd.calibration.models.coil import MIXES, PRIORS, CoilTerms, fit_mix, fit_rate_prior
 from fogd.calibration.models.folds import folds, held_out_rmse
 from fogd.calibration.models.least_squares import (
     POLY_TERMS,
@@ -44,6 +44,8 @@ class FitOptions:
     shifted_columns: tuple[int, ...] = ()  # temperatures the domain clamp moves together (fogd.core.inputs.clamp_rows)
     trend_degree: int = 3  # the "coil" and "poly" trends' highest power
     coil_mix: str = "auto"  # the "coil" trend's coil temperature: "auto", "mean" or "signed" (fogd.calibration.models.coil)
+    rate_prior: str = "smooth"  # the "coil" trend's prior on its lags' rate coefficients, or "none" (the same module)
+    lag_taus_s: tuple[float, ...] = ()  # each input's lag time constant, 0 for inputs that are not lags (same order)
     kernel_columns: tuple[int, ...] | None = None  # pso-svr over a trend: the inputs its kernel reads (None: every one)
     particles: int = 60
     iterations: int = 100
@@ -64,6 +66,8 @@ class FitOptions:
             raise UsageError(f"unknown trend {self.trend!r}: choose one of {', '.join(TRENDS)}")
         if self.coil_mix not in MIXES:
             raise UsageError(f"unknown coil mix {self.coil_mix!r}: choose one of {', '.join(MIXES)}")
+        if self.rate_prior not in PRIORS:
+            raise UsageError(f"unknown rate prior {self.rate_prior!r}: choose one of {', '.join(PRIORS)}")
 
 
 @dataclass
@@ -125,7 +129,8 @@ def fit(method: str, X: np.ndarray, y: np.ndarray, groups: np.ndarray, options: 
         else:
             result = fit_pso_svr(
                 xs, ys, splits, y_scale,
-                fitness=options.fitness, trend=options.trend != "none", trend_powers=trend_terms(xs, ys, groups, options),
+                fitness=options.fitness, trend=options.trend != "none",
+                trend_powers=trend_terms(xs, ys, groups, options, x_scale),
                 groups=groups, clamp=clamp, kernel_columns=options.kernel_columns if options.trend != "none" else None,
                 particles=options.particles, iterations=options.iterations,
                 c1=options.c1, c2=options.c2, seed=options.seed, n_jobs=options.n_jobs, progress=options.progress,
@@ -152,12 +157,17 @@ def fit(method: str, X: np.ndarray, y: np.ndarray, groups: np.ndarray, options: 
     )
 
 
-def trend_terms(xs: np.ndarray, ys: np.ndarray, groups: np.ndarray, options: FitOptions) -> np.ndarray | CoilTerms | None:
-    """The pso-svr trend's terms of the scaled rows: the "coil" trend's mix (fitted once, here, then fixed for
-    every fold and particle), the "poly" trend's monomials (every input linear, the static columns up to
-    `trend_degree`), or None (linear; also the coil trend's when no input is a temperature)."""
+def trend_terms(xs: np.ndarray, ys: np.ndarray, groups: np.ndarray, options: FitOptions,
+                x_scale: np.ndarray) -> np.ndarray | CoilTerms | None:  # fmt: skip
+    """The pso-svr trend's terms of the scaled rows (`x_scale`: the inputs' scales): the "coil" trend's mix and
+    rate prior (fitted once, here, then fixed for every fold and particle), the "poly" trend's monomials (every
+    input linear, the static columns up to `trend_degree`), or None (linear; also the coil trend's when no
+    input is a temperature)."""
     if options.trend == "coil" and options.temperature_columns:
-        return fit_mix(xs, ys, groups, options.temperature_columns, options.trend_degree, options.coil_mix)
+        terms = fit_mix(xs, ys, groups, options.temperature_columns, options.trend_degree, options.coil_mix)
+        if options.rate_prior == "none" or len(options.lag_taus_s) != xs.shape[1]:
+            return terms
+        return fit_rate_prior(terms, xs, ys, groups, np.asarray(options.lag_taus_s) / x_scale)
     if options.trend == "poly":
         return temperature_powers(xs.shape[1], options.trend_degree, options.static_columns)
     return None

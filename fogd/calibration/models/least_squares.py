@@ -66,6 +66,10 @@ class RunOffsetLeastSquares(RegressorMixin, BaseEstimator):
     def fit(self, xs: np.ndarray, ys: np.ndarray, groups: np.ndarray | None = None) -> "RunOffsetLeastSquares":
         features = self.features(xs)
         centred_x, centred_y = centred_within_runs(features, groups), centred_within_runs(ys, groups)
+        penalty = self.powers.penalty_rows if isinstance(self.powers, CoilTerms) else None
+        if penalty is not None and penalty.shape[0]:  # the coil trend's rate prior: |penalty coef|^2 added
+            centred_x = np.vstack((centred_x, penalty))
+            centred_y = np.concatenate((centred_y, np.zeros(penalty.shape[0])))
         self.coef_ = np.linalg.lstsq(centred_x, centred_y, rcond=None)[0]
         self.intercept_ = float(np.mean(ys) - features.mean(axis=0) @ self.coef_)
         return self
