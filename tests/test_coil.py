@@ -177,13 +177,17 @@ def test_the_rate_prior_pulls_noisy_rate_coefficients_towards_a_smooth_truth() -
 
 def test_the_rate_prior_leaves_a_bend_the_data_pin_down() -> None:
     """A truth far from smooth along the bank, measured with little noise: the strength chosen is weak enough
-    to keep it (the same coefficients as plain least squares, within a few percent of the bend)."""
+    to keep it, and far weaker than for a smooth truth measured with much noise."""
     truth = np.array([4.0, -3.0, 5.0, -2.0, 3.0])
     xs, ys, groups, lag_rates = _bank_rows(11, truth, noise=1e-3)
     plain = fit_mix(xs, ys, groups, (0,), degree=3)
     prior = fit_rate_prior(plain, xs, ys, groups, lag_rates)
     fitted = _rate_coef(RunOffsetLeastSquares(prior).fit(xs, ys, groups).coef_, lag_rates)
     np.testing.assert_allclose(fitted, truth, atol=0.3)
+    xs, ys, groups, lag_rates = _bank_rows(11, np.array([1.0, 1.5, 2.0, 2.5, 3.0]), noise=0.5)
+    smooth = fit_rate_prior(fit_mix(xs, ys, groups, (0,), degree=3), xs, ys, groups, lag_rates)
+    assert prior.prior_strength is not None and smooth.prior_strength is not None
+    assert prior.prior_strength * 1e4 <= smooth.prior_strength  # the strength follows the data, not a constant
 
 
 def test_the_rate_prior_is_an_option() -> None:

@@ -70,6 +70,7 @@ class CoilTerms:
     degree: int = 3
     # rows A of the fit's penalty |A coef|^2 (fit_rate_prior), or None: plain least squares
     penalty_rows: np.ndarray | None = field(default=None, compare=False, repr=False)
+    prior_strength: float | None = None  # the rate prior's strength, relative to the features' scale (PRIOR_STRENGTHS)
 
     def __call__(self, xs: np.ndarray) -> np.ndarray:
         xs = np.asarray(xs, dtype=np.float64)
@@ -194,8 +195,9 @@ def fit_rate_prior(terms: CoilTerms, xs: np.ndarray, ys: np.ndarray, groups: np.
     gram, prior = features.T @ features, rows.T @ rows
     dof = centred_y.size - (1 if groups is None else np.unique(groups).size) - (terms.columns - rows.shape[0])
     unit = np.trace(gram) / np.trace(prior)
-    best_score, best_strength = np.inf, 0.0
-    for strength in unit * PRIOR_STRENGTHS:
+    best_score, best_relative = np.inf, 0.0
+    for relative in PRIOR_STRENGTHS:
+        strength = unit * relative
         system = gram + strength * prior
         coef = np.linalg.solve(system, features.T @ centred_y)
         penalised_rss = float(np.sum((centred_y - features @ coef) ** 2) + strength * coef @ prior @ coef)
@@ -203,5 +205,5 @@ def fit_rate_prior(terms: CoilTerms, xs: np.ndarray, ys: np.ndarray, groups: np.
         # second differences, flat on what they do not see): Wahba / REML's criterion for a penalised fit
         score = dof * np.log(penalised_rss) + np.linalg.slogdet(system)[1] - rows.shape[0] * np.log(strength)
         if score < best_score:
-            best_score, best_strength = score, strength
-    return replace(terms, penalty_rows=np.sqrt(best_strength) * rows)
+            best_score, best_relative = score, float(relative)
+    return replace(terms, penalty_rows=np.sqrt(unit * best_relative) * rows, prior_strength=best_relative)

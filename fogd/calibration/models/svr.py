@@ -221,4 +221,6 @@ def fit_pso_svr(
         hyperparameters["kernel"] = "rbf" if kernel else f"none (the trend alone scored within {KERNEL_MARGIN:.0%} of it)"
     if coil is not None:
         hyperparameters["coil_mix"] = coil.mix.tolist()
+        if coil.prior_strength is not None:
+            hyperparameters["rate_prior_strength"] = coil.prior_strength  # relative (fogd.calibration.models.coil)
     return MethodFit(model, params, hyperparameters, result.history)
