@@ -32,7 +32,9 @@ def epsilon_key(unit: str) -> str:
 
 
 def unit_named(hyperparameters: dict[str, Any], unit: str) -> dict[str, Any]:
-    """Hyper-parameters as shown for a channel in `unit`: the tube (stored as epsilon_dph, in the targets'
-    unit whatever the channel) named epsilon_g for an accelerometer; the order kept."""
-    key = epsilon_key(unit)
-    return {(key if name == "epsilon_dph" else name): value for name, value in hyperparameters.items()}
+    """Hyper-parameters as shown for a channel in `unit`: the values stored under a name ending in _dph (the
+    tube epsilon_dph, the trend's own score trend_alone_dph: in the targets' unit whatever the channel) named
+    with the channel's suffix instead, epsilon_g for an accelerometer; the order kept."""
+    suffix = UNIT_SUFFIXES.get(unit, "dph")
+    return {(name[: -len("dph")] + suffix if name.endswith("_dph") else name): value
+            for name, value in hyperparameters.items()}  # fmt: skip
