@@ -190,6 +190,20 @@ def test_the_rate_prior_leaves_a_bend_the_data_pin_down() -> None:
     assert prior.prior_strength * 1e4 <= smooth.prior_strength  # the strength follows the data, not a constant
 
 
+def test_the_rate_prior_survives_a_flat_input_and_too_few_rows() -> None:
+    """An input that never moves in the rows (a play operator that never slid, in a short fold) is left out of
+    the choice, not a singular matrix; with fewer rows than terms the trend is left as it was."""
+    xs, ys, groups, lag_rates = _bank_rows(5, np.array([1.0, 1.5, 2.0, 2.5, 3.0]), noise=0.5)
+    xs = np.column_stack((xs, np.zeros(len(xs))))  # a seventh input, flat
+    lag_rates = np.r_[lag_rates, 0.0]
+    plain = fit_mix(xs, ys, groups, (0,), degree=3)
+    prior = fit_rate_prior(plain, xs, ys, groups, lag_rates)
+    assert prior.prior_strength is not None
+    assert np.all(np.isfinite(RunOffsetLeastSquares(prior).fit(xs, ys, groups).coef_))
+    few = fit_rate_prior(plain, xs[:6], ys[:6], groups[:6], lag_rates)
+    assert few.penalty_rows is None and few.prior_strength is None
+
+
 def test_the_rate_prior_is_an_option() -> None:
     with pytest.raises(UsageError, match="rate prior"):
         FitOptions(rate_prior="ridge")

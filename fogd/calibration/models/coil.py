@@ -186,24 +186,35 @@ def rate_prior_rows(terms: CoilTerms, lag_rates: np.ndarray) -> np.ndarray:
 def fit_rate_prior(terms: CoilTerms, xs: np.ndarray, ys: np.ndarray, groups: np.ndarray | None,
                    lag_rates: np.ndarray) -> CoilTerms:  # fmt: skip
     """`terms` with the rate prior's penalty at the strength that maximises the calibration blocks' marginal
-    likelihood (module docstring); unchanged where the bank has fewer than three lags."""
+    likelihood (module docstring); unchanged where the bank has fewer than three lags, or where the blocks
+    cannot tell one strength from another (fewer rows than terms, a degenerate fit at every strength)."""
     rows = rate_prior_rows(terms, np.asarray(lag_rates, dtype=np.float64))
     if rows.shape[0] == 0:
         return terms
     features = centred_within_runs(terms(xs), groups)
+    moving = np.linalg.norm(features, axis=0) > 0  # an input flat in these rows (a play that never slid) drops out
+    features, fit_rows = features[:, moving], rows[:, moving]
     centred_y = centred_within_runs(np.asarray(ys, dtype=np.float64), groups)
-    gram, prior = features.T @ features, rows.T @ rows
-    dof = centred_y.size - (1 if groups is None else np.unique(groups).size) - (terms.columns - rows.shape[0])
+    gram, prior = features.T @ features, fit_rows.T @ fit_rows
+    rank = np.linalg.matrix_rank(fit_rows)
+    dof = centred_y.size - (1 if groups is None else np.unique(groups).size) - (features.shape[1] - rank)
+    if rank == 0 or dof <= 0:
+        return terms
     unit = np.trace(gram) / np.trace(prior)
-    best_score, best_relative = np.inf, 0.0
+    best_score, best_relative = np.inf, None
     for relative in PRIOR_STRENGTHS:
         strength = unit * relative
-        system = gram + strength * prior
-        coef = np.linalg.solve(system, features.T @ centred_y)
+        sign, log_det = np.linalg.slogdet(gram + strength * prior)
+        coef = np.linalg.lstsq(np.vstack((features, np.sqrt(strength) * fit_rows)),
+                               np.concatenate((centred_y, np.zeros(rows.shape[0]))), rcond=None)[0]  # fmt: skip
         penalised_rss = float(np.sum((centred_y - features @ coef) ** 2) + strength * coef @ prior @ coef)
+        if sign <= 0 or not np.isfinite(log_det) or not penalised_rss > 0:  # singular, or a perfect fit
+            continue
         # -2 log evidence with the noise variance profiled out, up to a constant (a Gaussian prior on the rows'
         # second differences, flat on what they do not see): Wahba / REML's criterion for a penalised fit
-        score = dof * np.log(penalised_rss) + np.linalg.slogdet(system)[1] - rows.shape[0] * np.log(strength)
+        score = dof * np.log(penalised_rss) + log_det - rank * np.log(strength)
         if score < best_score:
             best_score, best_relative = score, float(relative)
+    if best_relative is None:
+        return terms
     return replace(terms, penalty_rows=np.sqrt(unit * best_relative) * rows, prior_strength=best_relative)
