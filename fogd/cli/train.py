@@ -126,7 +126,7 @@ def parser() -> ArgumentParser:
     p.add_argument(
         "--rate-prior", choices=PRIORS, default="smooth",
         help="the coil trend's lag coefficients: 'smooth' (a prior that they vary smoothly along the bank as "
-        "rates, its strength the calibration blocks' most likely; default) or 'none' (plain least squares)",
+        "rates, its strength the calibration blocks' most likely) or 'none' (plain least squares)",
     )  # fmt: skip
     p.add_argument("--particles", type=positive_int, default=None,
                    help=f"PSO population (default 60 as the paper; {AUTO_PARTICLES} inside --method auto)")
