@@ -16,6 +16,7 @@ fallback column is the share of the held-out samples that the domain guard sent 
     python tools/accuracy_table.py --quick --sensor fine --schemes default --seed 3   # the default alone
     python tools/accuracy_table.py --quick --schemes default --default-inputs temp,lags@10..2560/9   # another bank
     python tools/accuracy_table.py --quick --sensor whole --bound  # and tools/quantisation_bound.py's bound per run
+    python tools/accuracy_table.py --quick --sensor fine --schemes default --physics sensor_on=baseplate   # other physics
 
 With --imu the runs are three-axis IMUs (`fogd-sim --imu`: three gyros and three accelerometers, each with its
 own thermal error of the same coil), every channel is trained with fogd-train's default exactly as fogd-train
@@ -29,6 +30,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import time
+from dataclasses import fields
 
 import numpy as np
 
@@ -51,7 +53,7 @@ from fogd.core.inputs import (
 )
 from fogd.core.runio import Run
 from fogd.simulation.profiles import builtin
-from fogd.simulation.simulator import Simulation, params_for, simulate
+from fogd.simulation.simulator import SimParams, Simulation, params_for, simulate
 
 CALIBRATION = ("paper-train", "cooling", "cycle")
 HELD_OUT = ("paper-test", "cool-40-to-0", "fast-ramp", "soak-after-ramp", "fast-cycle")
@@ -81,10 +83,29 @@ def simulated_run(profile: str, seed: int, rate_hz: float, params) -> Run:
     return Run(f"{profile}.csv", sim.t_s, sim.rate_dph, sim.temp_c, rate_hz, digest, {"true_error_dph": sim.true_error_dph})
 
 
-def sim_overrides(args) -> dict[str, float]:
+def sim_overrides(args) -> dict[str, float | int | str]:
     """The simulated gyro's settings the command line changes from the navigation preset's."""
     given = {"hysteresis_dph": args.hysteresis_dph, "hysteresis_deadband_c": args.hysteresis_deadband_c}
-    return {key: value for key, value in given.items() if value is not None}
+    return {**{key: value for key, value in given.items() if value is not None}, **dict(getattr(args, "physics", None) or [])}
+
+
+# what the table itself sets for each of its cells: not for --physics
+_TABLE_SETS = frozenset({"thermal", "sensor_resolution_c", "sensor_rate_hz"})
+
+
+def physics_setting(text: str) -> tuple[str, float | int | str]:
+    """--physics KEY=VALUE: a scalar SimParams field and its value in the field's type."""
+    key, sep, value = text.partition("=")
+    defaults = {field.name: field.default for field in fields(SimParams)}
+    if not sep or key not in defaults or key in _TABLE_SETS or isinstance(defaults[key], tuple):
+        settable = ", ".join(sorted(name for name, default in defaults.items()
+                                    if name not in _TABLE_SETS and not isinstance(default, tuple)))  # fmt: skip
+        raise argparse.ArgumentTypeError(f"{text!r}: give KEY=VALUE with KEY one of {settable}")
+    kind = type(defaults[key])
+    try:
+        return key, kind(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: {key} takes a {'whole number' if kind is int else 'number'}") from None
 
 
 def evaluate(args, thermal: str, resolution_c: float, sensor_hz: float) -> dict[str, list]:
@@ -239,6 +260,9 @@ def main() -> None:
     parser.add_argument("--hysteresis-deadband-c", type=float, default=None,
                         help="the width of the simulated gyro's play, C (default 2): another gyro than the one the "
                              "default was tuned on")
+    parser.add_argument("--physics", type=physics_setting, action="append", metavar="KEY=VALUE",
+                        help="another simulated gyro: a fogd.simulation.simulator.SimParams setting (repeatable), e.g. "
+                             "sensor_on=baseplate, coil_nodes=3, housing_tau_s=3000, coil_outer_tau_s=600")
     parser.add_argument("--schemes", type=lambda text: text.split(","), default=None,
                         help="only these schemes, comma-separated, of: " + ", ".join(SCHEME_KEYS.values())
                              + " (default: all)")
@@ -266,6 +290,10 @@ def main() -> None:
             parse_inputs(args.default_inputs)
         except ValueError as error:
             parser.error(str(error))
+    try:
+        params_for("navigation", **sim_overrides(args))
+    except ValueError as error:
+        parser.error(str(error))
     for thermal in args.thermal or THERMALS:
         for sensor, (resolution_c, sensor_hz) in SENSORS.items():
             if args.sensor and sensor.split()[0] not in args.sensor:
@@ -276,6 +304,8 @@ def main() -> None:
                 hysteresis += f", play width {args.hysteresis_deadband_c:g} C"
             if args.default_inputs:
                 hysteresis += f", the default's inputs {args.default_inputs}"
+            for key, value in args.physics or []:
+                hysteresis += f", {key} {value}"
             if args.imu:
                 print_channel_tables(f"Navigation-grade IMU, {thermal} coil, {sensor} sensor; {args.rate_hz:g} Hz, seed "
                                      f"{args.seed}{', PSO 20 x 20' if args.quick else ''}{hysteresis}: std of 100 s block "
