@@ -21,7 +21,10 @@ Where the mean describes the blocks as well, the extra freedom only fits their n
 faster than calibration pays for it (tools/accuracy_table.py --quick --schemes default, fine sensor, seeds 2
 and 3: the z gyro's worst held-out run 1.20-1.64x the noise floor with the mean, 1.51-1.97x with
 `--coil-mix signed`). With the choice, `--imu` seed 1 lumped: accel_z_g's worst run 3.85 -> 1.82x, accel_y_g's
-2.47 -> 1.33x.
+2.47 -> 1.33x. The bound is wide (4) because a sensor far ahead of the coil needs it: on the baseplate
+(`tools/accuracy_table.py --physics sensor_on=baseplate`, seed 1, worst run lumped / diffusive) the mix hit +-1
+and +-2 and left 1.89 / 2.37x (fine sensor) and 2.47 / 3.16x (whole degrees); within +-4, 1.51 / 1.61x and 2.08 /
+2.37x. On the default physics nothing moved; `--imu` seed 1 lumped accel_z_g lost 1.82 -> 1.90x.
 
 The lag coefficients carry the coil's dynamics, and calibration ramps (20-24 C/h) pin down only part of them:
 the gyro's noise in the calibration blocks moves the rest, which a ramp four times faster reads. A ridge
@@ -54,7 +57,7 @@ import numpy as np
 from fogd.core.errorstats import centred_within_runs
 
 MIX_FLOOR = 1e-3  # mix weights smaller than this are dropped (and the rest renormalised): fewer monomials to serve
-SIGNED_MIX_BOUND = 1.0  # the signed mix's free weights stay within +-this (its largest weight is 1 minus their sum)
+SIGNED_MIX_BOUND = 4.0  # the signed mix's free weights stay within +-this (its largest weight is 1 minus their sum)
 SIGNED_MIX_GAIN = 0.03  # the signed mix must leave this share less residual RMS than the mean to replace it
 MIXES = ("auto", "mean", "signed")  # fit_mix's choice: the gate above, the weighted mean, or the signed mix
 PRIOR_STRENGTHS = np.geomspace(1e-9, 1e-1, 33)  # the rate prior's strengths tried, relative to the features' scale
