@@ -86,7 +86,8 @@ def simulated_run(profile: str, seed: int, rate_hz: float, params) -> Run:
 def sim_overrides(args) -> dict[str, float | int | str]:
     """The simulated gyro's settings the command line changes from the navigation preset's."""
     given = {"hysteresis_dph": args.hysteresis_dph, "hysteresis_deadband_c": args.hysteresis_deadband_c}
-    return {**{key: value for key, value in given.items() if value is not None}, **dict(getattr(args, "physics", None) or [])}
+    given = {key: value for key, value in given.items() if value is not None}
+    return {**given, **dict(args.physics or [])}
 
 
 # what the table itself sets for each of its cells: not for --physics

@@ -121,7 +121,7 @@ def parser() -> ArgumentParser:
         help="the coil trend's coil temperature over the temperature inputs: 'mean' (a weighted mean: a layer "
         "that follows the sensor through one lag), 'signed' (weights of either sign summing to 1: a layer deep in "
         "the coil, behind a chain of lags), or 'auto' (the signed mix where it leaves "
-        f"{SIGNED_MIX_GAIN * 100:g} %% less residual on the calibration blocks, else the mean; default)",
+        f"{SIGNED_MIX_GAIN * 100:g} %% less residual on the calibration blocks, else the mean)",
     )  # fmt: skip
     p.add_argument(
         "--rate-prior", choices=PRIORS, default="smooth",
