@@ -23,7 +23,8 @@ and `+pre:TAU` after any of them puts a causal first-order lag of TAU s in front
 same lag of the fit temperature, so its delay is compensated). `--ridge` adds a ridge on the trend's scaled
 coefficients (`loro`: its strength chosen by leave-one-calibration-run-out drift about each run's mean);
 `--play WIDTH[@TAU]` adds a play operator (fogd.core.play) of a TAU s lag of the temperature as an input,
-`--target truth` fits the calibration runs' true thermal error instead of the measured rate (no gyro noise),
+`--rate-prior smooth` adds fogd-train's default prior on the lags' rate coefficients (plain least squares
+without it), `--target truth` fits the calibration runs' true thermal error instead of the measured rate (no gyro noise),
 `--calibration-copies N` records each calibration programme N times (the first as the accuracy table does)
 and `--hysteresis-dph 0` simulates the gyro without its play hysteresis. Besides each case's figures: the
 trend's drift RMSE on the calibration blocks (fit) and left out run by run (loro).
@@ -32,6 +33,7 @@ trend's drift RMSE on the calibration blocks (fit) and left out run by run (loro
     python tools/trend_diagnostic.py --inputs temp,lags@10..3000/7 --case true/true --case read/read --play '' --play 2
     python tools/trend_diagnostic.py --seed 3 --thermal diffusive --case held/held --case quant/quant --case noisy/noisy
     python tools/trend_diagnostic.py --seed 1 --seed 2 --seed 3 --case read/read --case inv:10/inv:10
+    python tools/trend_diagnostic.py --seed 3 --seed 4 --case true/true --rate-prior smooth --hysteresis-dph 0
 """
 
 from __future__ import annotations
@@ -41,7 +43,7 @@ import math
 
 import numpy as np
 
-from fogd.calibration.models.coil import fit_mix
+from fogd.calibration.models.coil import PRIORS, fit_mix, fit_rate_prior
 from fogd.calibration.models.least_squares import RunOffsetLeastSquares
 from fogd.core.columns import BLOCK_S
 from fogd.core.errorstats import block_means, centred_within_runs, detrended_stats
@@ -49,6 +51,7 @@ from fogd.core.inputs import (
     DEFAULT_INPUTS_TEXT,
     clamp_rows,
     inputs_batch,
+    lag_taus_s,
     parse_inputs,
     shifted_columns,
     temperature_columns,
@@ -171,18 +174,23 @@ def blocks(run: SimRun, x: np.ndarray, block_n: int, target: str = "rate") -> tu
 class Trend:
     """The coil trend (fit_mix then run-offset least squares, optionally ridged) on scaled block rows."""
 
-    def __init__(self, x: np.ndarray, y: np.ndarray, groups: np.ndarray, specs, ridge: float | str = 0.0) -> None:
+    def __init__(self, x: np.ndarray, y: np.ndarray, groups: np.ndarray, specs, ridge: float | str = 0.0,
+                 rate_prior: str = "none") -> None:  # fmt: skip
         self.x_mean, std = x.mean(axis=0), x.std(axis=0)
         self.x_scale = np.where(std > 0, std, 1.0)
         self.y_scale = float(y.std()) or 1.0
         xs, ys = (x - self.x_mean) / self.x_scale, (y - y.mean()) / self.y_scale
         self.terms = fit_mix(xs, ys, groups, temperature_columns(specs), 3)
+        if rate_prior == "smooth":  # as fogd-train's (fogd.calibration.models.fit.trend_terms)
+            taus_s = np.zeros(xs.shape[1])  # an added play (--play) is not a lag
+            taus_s[: len(specs)] = lag_taus_s(specs)
+            self.terms = fit_rate_prior(self.terms, xs, ys, groups, taus_s / self.x_scale)
         if ridge == "loro":
             scores = {value: _loro(xs, ys, groups, self.terms, value) for value in RIDGES}
             ridge = min(scores, key=scores.get)
             self.scores = scores
         self.ridge = float(ridge)
-        self.coef, self.intercept = _ridge_fit(self.terms(xs), ys, groups, self.ridge)
+        self.coef, self.intercept = _ridge_fit(self.terms, xs, ys, groups, self.ridge)
         residual = self.terms(xs) @ self.coef + self.intercept - ys
         self.fit_rmse_dph = float(np.sqrt(np.mean(centred_within_runs(residual, groups) ** 2))) * self.y_scale
         self.loro_dph = _loro(xs, ys, groups, self.terms, self.ridge) * self.y_scale
@@ -192,10 +200,11 @@ class Trend:
         return (self.terms(xs) @ self.coef + self.intercept) * self.y_scale
 
 
-def _ridge_fit(features: np.ndarray, ys: np.ndarray, groups: np.ndarray, ridge: float) -> tuple[np.ndarray, float]:
-    if ridge == 0:
-        model = RunOffsetLeastSquares().fit(features, ys, groups)
+def _ridge_fit(terms, xs: np.ndarray, ys: np.ndarray, groups: np.ndarray, ridge: float) -> tuple[np.ndarray, float]:
+    if ridge == 0:  # with the terms' rate prior, if any
+        model = RunOffsetLeastSquares(terms).fit(xs, ys, groups)
         return model.coef_, model.intercept_
+    features = terms(xs)
     cx, cy = centred_within_runs(features, groups), centred_within_runs(ys, groups)
     n = len(cy)
     coef = np.linalg.solve(cx.T @ cx + ridge * n * np.eye(cx.shape[1]), cx.T @ cy)
@@ -206,7 +215,7 @@ def _loro(xs, ys, groups, terms, ridge: float) -> float:
     residual = []
     for run in np.unique(groups):
         train = groups != run
-        coef, intercept = _ridge_fit(terms(xs[train]), ys[train], groups[train], ridge)
+        coef, intercept = _ridge_fit(terms, xs[train], ys[train], groups[train], ridge)
         r = terms(xs[~train]) @ coef + intercept - ys[~train]
         residual.append(r - r.mean())
     return float(np.sqrt(np.mean(np.concatenate(residual) ** 2)))
@@ -222,7 +231,8 @@ def score(run: SimRun, comp_dph: np.ndarray) -> float:
 
 
 def case_scores(calibration: list[SimRun], held_out: list[SimRun], fit_spec: str, serve_spec: str, specs,
-                ridge: float | str, play: str | None = None, target: str = "rate") -> tuple[list[float], Trend]:  # fmt: skip
+                ridge: float | str, play: str | None = None, target: str = "rate",
+                rate_prior: str = "none") -> tuple[list[float], Trend]:  # fmt: skip
     block_n = round(BLOCK_S * calibration[0].rate_hz)
     xs, ys, groups, samples = [], [], [], []
     for index, run in enumerate(calibration):
@@ -233,7 +243,7 @@ def case_scores(calibration: list[SimRun], held_out: list[SimRun], fit_spec: str
         ys.append(yb)
         groups.append(np.full(len(yb), index))
         samples.append(x)
-    trend = Trend(np.concatenate(xs), np.concatenate(ys), np.concatenate(groups), specs, ridge)
+    trend = Trend(np.concatenate(xs), np.concatenate(ys), np.concatenate(groups), specs, ridge, rate_prior)
     low = np.min([x.min(axis=0) for x in samples], axis=0)
     high = np.max([x.max(axis=0) for x in samples], axis=0)
     out = []
@@ -259,13 +269,16 @@ def main() -> None:
     parser.add_argument("--target", choices=("rate", "truth"), default="rate",
                         help="fit the calibration runs' measured rate, or their true thermal error (no gyro noise)")
     parser.add_argument("--ridge", default="0", help="ridge strength on the scaled trend, or 'loro'")
+    parser.add_argument("--rate-prior", choices=PRIORS, default="none",
+                        help="the coil trend's prior on its lags' rate coefficients, as fogd-train's --rate-prior "
+                             "(default none here: plain least squares, as before the prior)")
     parser.add_argument("--calibration-copies", type=int, default=1, metavar="N",
                         help="record each calibration programme N times (other noise seeds): what more calibration buys")
     args = parser.parse_args()
     specs = parse_inputs(args.inputs)
     cases = args.case or ["read/read", "true/true", "true/read"]
     ridge = args.ridge if args.ridge == "loro" else float(args.ridge)
-    print(f"coil trend alone on {args.inputs}, ridge {args.ridge}: held-out drift / noise floor "
+    print(f"coil trend alone on {args.inputs}, ridge {args.ridge}, rate prior {args.rate_prior}: held-out drift / noise floor "
           f"({', '.join(HELD_OUT)}), worst")  # fmt: skip
     for seed in args.seed or [1, 2]:
         for thermal in args.thermal or ["lumped", "diffusive"]:
@@ -277,7 +290,8 @@ def main() -> None:
             held_out = [SimRun(name, seed + 100 + i, args.rate_hz, params) for i, name in enumerate(HELD_OUT)]
             for case, play in ((case, play) for case in cases for play in args.play or [None]):
                 fit_spec, _, serve_spec = case.partition("/")
-                ratios, trend = case_scores(calibration, held_out, fit_spec, serve_spec, specs, ridge, play, args.target)
+                ratios, trend = case_scores(calibration, held_out, fit_spec, serve_spec, specs, ridge, play, args.target,
+                                            args.rate_prior)  # fmt: skip
                 case = case if play is None else f"{case} play {play}"
                 chosen = f" ridge {trend.ridge:g}" if ridge == "loro" else ""
                 print(f"seed {seed} {thermal:9s} {case:28s} " + " ".join(f"{r:5.2f}" for r in ratios)
