@@ -17,6 +17,8 @@ fallback column is the share of the held-out samples that the domain guard sent 
     python tools/accuracy_table.py --quick --schemes default --default-inputs temp,lags@10..2560/9   # another bank
     python tools/accuracy_table.py --quick --sensor whole --bound  # and tools/quantisation_bound.py's bound per run
     python tools/accuracy_table.py --quick --sensor fine --schemes default --physics sensor_on=baseplate   # other physics
+    python tools/accuracy_table.py --quick --sensor fine --schemes default --calibration paper-train \
+        --calibration cooling --calibration cycle --calibration fast-cycle   # another calibration programme
 
 With --imu the runs are three-axis IMUs (`fogd-sim --imu`: three gyros and three accelerometers, each with its
 own thermal error of the same coil), every channel is trained with fogd-train's default exactly as fogd-train
@@ -52,7 +54,8 @@ from fogd.core.inputs import (
     parse_inputs,
 )
 from fogd.core.runio import Run
-from fogd.simulation.profiles import builtin
+from fogd.errors import FogdError
+from fogd.simulation.profiles import Profile, builtin, resolve
 from fogd.simulation.simulator import SimParams, Simulation, params_for, simulate
 
 CALIBRATION = ("paper-train", "cooling", "cycle")
@@ -77,10 +80,16 @@ SCHEME_KEYS = {SCHEMES[0][0]: "linear", SCHEMES[1][0]: "paper", SCHEMES[2][0]: "
                SCHEMES[4][0]: "guard", AUTO: "auto"}
 
 
-def simulated_run(profile: str, seed: int, rate_hz: float, params) -> Run:
-    sim = simulate(builtin(profile), rate_hz, seed, params)
+def simulated_run(profile: str | Profile, seed: int, rate_hz: float, params) -> Run:
+    profile = builtin(profile) if isinstance(profile, str) else profile
+    sim = simulate(profile, rate_hz, seed, params)
     digest = hashlib.sha256(sim.rate_dph.tobytes()).hexdigest()
-    return Run(f"{profile}.csv", sim.t_s, sim.rate_dph, sim.temp_c, rate_hz, digest, {"true_error_dph": sim.true_error_dph})
+    return Run(f"{profile.name}.csv", sim.t_s, sim.rate_dph, sim.temp_c, rate_hz, digest, {"true_error_dph": sim.true_error_dph})
+
+
+def calibration_profiles(args) -> list[Profile]:
+    """The calibration runs' chamber programmes: `--calibration`'s (built-in names or YAML files), else CALIBRATION."""
+    return [resolve(spec) for spec in (getattr(args, "calibration", None) or CALIBRATION)]
 
 
 def sim_overrides(args) -> dict[str, float | int | str]:
@@ -112,7 +121,8 @@ def physics_setting(text: str) -> tuple[str, float | int | str]:
 def evaluate(args, thermal: str, resolution_c: float, sensor_hz: float) -> dict[str, list]:
     extra = sim_overrides(args)
     params = params_for("navigation", thermal, sensor_resolution_c=resolution_c, sensor_rate_hz=sensor_hz, **extra)
-    calibration = [simulated_run(name, args.seed + i, args.rate_hz, params) for i, name in enumerate(CALIBRATION)]
+    calibration = [simulated_run(profile, args.seed + i, args.rate_hz, params)
+                   for i, profile in enumerate(calibration_profiles(args))]  # fmt: skip
     held_out = [simulated_run(name, args.seed + 100 + i, args.rate_hz, params) for i, name in enumerate(HELD_OUT)]
     size = (20, 20) if args.quick else (60, 100)
     auto_size = (10, 10) if args.quick else (AUTO_PARTICLES, AUTO_ITERATIONS)
@@ -143,20 +153,22 @@ def evaluate(args, thermal: str, resolution_c: float, sensor_hz: float) -> dict[
     return rows
 
 
-def simulated_imu_run(profile: str, seed: int, rate_hz: float, params) -> Run:
+def simulated_imu_run(profile: str | Profile, seed: int, rate_hz: float, params) -> Run:
     """The run `fogd-sim --imu` writes, as `read_run` reads it: every channel, rate_dph its z gyro."""
-    columns = Simulation(builtin(profile), rate_hz, seed, params).imu_columns()
+    profile = builtin(profile) if isinstance(profile, str) else profile
+    columns = Simulation(profile, rate_hz, seed, params).imu_columns()
     channels = {channel: columns[channel] for channel in CHANNELS}
     digest = hashlib.sha256(b"".join(values.tobytes() for values in channels.values())).hexdigest()
     truths = {truth_column(channel): columns[truth_column(channel)] for channel in CHANNELS}
-    return Run(f"{profile}.csv", columns["t_s"], channels["rate_z_dph"], columns["temp_c"], rate_hz, digest, truths, channels)
+    return Run(f"{profile.name}.csv", columns["t_s"], channels["rate_z_dph"], columns["temp_c"], rate_hz, digest, truths, channels)
 
 
 def evaluate_imu(args, thermal: str, resolution_c: float, sensor_hz: float) -> dict[str, dict[str, list]]:
     """Per channel: the held-out runs' (after / floor, fallback share), before / floor, and the floor."""
     extra = sim_overrides(args)
     params = params_for("navigation", thermal, sensor_resolution_c=resolution_c, sensor_rate_hz=sensor_hz, **extra)
-    calibration = [simulated_imu_run(name, args.seed + i, args.rate_hz, params) for i, name in enumerate(CALIBRATION)]
+    calibration = [simulated_imu_run(profile, args.seed + i, args.rate_hz, params)
+                   for i, profile in enumerate(calibration_profiles(args))]  # fmt: skip
     held_out = [simulated_imu_run(name, args.seed + 100 + i, args.rate_hz, params) for i, name in enumerate(HELD_OUT)]
     size = (20, 20) if args.quick else (60, 100)
     options = FitOptions(particles=size[0], iterations=size[1], n_jobs=args.jobs, seed=args.seed, progress=False,
@@ -264,6 +276,10 @@ def main() -> None:
     parser.add_argument("--physics", type=physics_setting, action="append", metavar="KEY=VALUE",
                         help="another simulated gyro: a fogd.simulation.simulator.SimParams setting (repeatable), e.g. "
                              "sensor_on=baseplate, coil_nodes=3, housing_tau_s=3000, coil_outer_tau_s=600")
+    parser.add_argument("--calibration", action="append", metavar="PROFILE",
+                        help="a calibration run's chamber programme instead of the three built-in ones (repeatable): a "
+                             "built-in profile (fogd-sim --list-profiles) or a YAML file of [duration_s, target_c] "
+                             "pairs; the held-out runs stay " + ", ".join(HELD_OUT))
     parser.add_argument("--schemes", type=lambda text: text.split(","), default=None,
                         help="only these schemes, comma-separated, of: " + ", ".join(SCHEME_KEYS.values())
                              + " (default: all)")
@@ -295,6 +311,10 @@ def main() -> None:
         params_for("navigation", **sim_overrides(args))
     except ValueError as error:
         parser.error(str(error))
+    try:
+        calibration_profiles(args)
+    except FogdError as error:  # an unknown profile, or a file that is not a profile
+        parser.error(str(error))
     for thermal in args.thermal or THERMALS:
         for sensor, (resolution_c, sensor_hz) in SENSORS.items():
             if args.sensor and sensor.split()[0] not in args.sensor:
@@ -307,6 +327,8 @@ def main() -> None:
                 hysteresis += f", the default's inputs {args.default_inputs}"
             for key, value in args.physics or []:
                 hysteresis += f", {key} {value}"
+            if args.calibration:
+                hysteresis += ", calibrated on " + " + ".join(profile.name for profile in calibration_profiles(args))
             if args.imu:
                 print_channel_tables(f"Navigation-grade IMU, {thermal} coil, {sensor} sensor; {args.rate_hz:g} Hz, seed "
                                      f"{args.seed}{', PSO 20 x 20' if args.quick else ''}{hysteresis}: std of 100 s block "
