@@ -97,3 +97,27 @@ def test_held_out_builtins_have_their_soaks_and_ramps(name, times_s, expected_c)
     assert profile.duration_s == times_s[-1]
     assert profile.setpoint_c(np.array(times_s)).tolist() == expected_c
     assert name in profiles.names() and profiles.summary(name)
+
+
+def _fastest_pace_cph(profile: Profile) -> float:
+    """The profile's fastest setpoint ramp, C/h."""
+    previous_c, fastest = profile.start_c, 0.0
+    for duration_s, target_c in profile.segments:
+        if duration_s > 0:
+            fastest = max(fastest, abs(target_c - previous_c) / duration_s * 3600.0)
+        previous_c = target_c
+    return fastest
+
+
+@pytest.mark.parametrize("name, pace_cph, soaks_s", [("cal-soaks", 20.0, 1800.0 + 3 * 5400.0), ("cal-fast-cycle", 60.0, 3 * 1800.0)])
+def test_the_guides_extra_calibration_runs_keep_the_held_out_fast_ramp_the_fastest(name, pace_cph, soaks_s):
+    """The README's calibration programme adds these two; the accuracy table's fast-ramp must stay faster than any."""
+    profile = profiles.builtin(name)
+    assert _fastest_pace_cph(profile) == pytest.approx(pace_cph)
+    assert _fastest_pace_cph(profile) < _fastest_pace_cph(profiles.builtin("fast-ramp")) == pytest.approx(80.0)
+    previous_c, soaked_s = profile.start_c, 0.0
+    for duration_s, target_c in profile.segments:
+        soaked_s += duration_s if target_c == previous_c else 0.0
+        previous_c = target_c
+    assert soaked_s == pytest.approx(soaks_s)
+    assert profiles.summary(name).startswith(("0 C", "-10 C"))

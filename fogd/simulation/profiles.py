@@ -122,6 +122,17 @@ _BUILTIN: dict[str, tuple[str, tuple[tuple[float, float], ...]]] = {
         "10 C up to 40 C and back in 30 min each (60 C/h), then a soak",
         ((0.5 * HOUR_S, 10.0), (0.5 * HOUR_S, 40.0), (0.5 * HOUR_S, 10.0), (1.0 * HOUR_S, 10.0)),
     ),
+    # Two more calibration runs of the README's programme for a KVH owner (its "soaks" and "fastest ramp" rows),
+    # over another range than the held-out runs above
+    "cal-soaks": (
+        "0 C, then 20 C/h steps to 10, 20 and 35 C with a 90 min soak at each (calibration: the slow lags settle)",
+        ((0.5 * HOUR_S, 0.0), (0.5 * HOUR_S, 10.0), (1.5 * HOUR_S, 10.0), (0.5 * HOUR_S, 20.0), (1.5 * HOUR_S, 20.0),
+         (0.75 * HOUR_S, 35.0), (1.5 * HOUR_S, 35.0)),
+    ),
+    "cal-fast-cycle": (
+        "-10 C up to 50 C and back at 60 C/h, 30 min soaks (calibration: a fast history and a fast reversal)",
+        ((0.5 * HOUR_S, -10.0), (1.0 * HOUR_S, 50.0), (0.5 * HOUR_S, 50.0), (1.0 * HOUR_S, -10.0), (0.5 * HOUR_S, -10.0)),
+    ),
 }
 
 
