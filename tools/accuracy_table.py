@@ -2,9 +2,9 @@
 
 For each gyro physics (a navigation-grade gyro like the paper's, its thermal error 30-100x the noise floor,
 with a lumped and a diffusive coil) and each temperature sensor (a fine one, 0.0625 C at 4 Hz, and a KVH's
-whole degrees at 1 Hz), simulates three calibration runs (heating -15..50 C, cooling 50..-10 C, a cycle) and
-five held-out runs with other seeds (0..30 C, cooling 40..0 C, a ramp faster than any calibration ramp, a
-soak after a ramp, a fast cycle), trains each scheme the way `fogd-train` does, replays the held-out runs
+whole degrees at 1 Hz), simulates three calibration runs (heating -15..50 C, cooling 50..-10 C, a cycle; or
+the programmes given with --calibration) and five held-out runs with other seeds (0..30 C, cooling 40..0 C, a
+ramp faster than any calibration ramp, a soak after a ramp, a fast cycle), trains each scheme the way `fogd-train` does, replays the held-out runs
 through the daemon's compensator and prints the std of 100 s block means after the first 600 s as a
 multiple of the noise floor (the same run with its true thermal error removed): 1.00 is perfect. The
 fallback column is the share of the held-out samples that the domain guard sent to its linear fallback.
@@ -18,7 +18,7 @@ fallback column is the share of the held-out samples that the domain guard sent 
     python tools/accuracy_table.py --quick --sensor whole --bound  # and tools/quantisation_bound.py's bound per run
     python tools/accuracy_table.py --quick --sensor fine --schemes default --physics sensor_on=baseplate   # other physics
     python tools/accuracy_table.py --quick --sensor fine --schemes default --calibration paper-train \
-        --calibration cooling --calibration cycle --calibration fast-cycle   # another calibration programme
+        --calibration cooling --calibration cycle --calibration cal-fast-cycle --calibration cal-soaks   # the KVH guide's
 
 With --imu the runs are three-axis IMUs (`fogd-sim --imu`: three gyros and three accelerometers, each with its
 own thermal error of the same coil), every channel is trained with fogd-train's default exactly as fogd-train
@@ -89,7 +89,7 @@ def simulated_run(profile: str | Profile, seed: int, rate_hz: float, params) -> 
 
 def calibration_profiles(args) -> list[Profile]:
     """The calibration runs' chamber programmes: `--calibration`'s (built-in names or YAML files), else CALIBRATION."""
-    return [resolve(spec) for spec in (getattr(args, "calibration", None) or CALIBRATION)]
+    return [resolve(spec) for spec in (args.calibration or CALIBRATION)]
 
 
 def sim_overrides(args) -> dict[str, float | int | str]:
