@@ -4,8 +4,8 @@ For each gyro physics (a navigation-grade gyro like the paper's, its thermal err
 with a lumped and a diffusive coil) and each temperature sensor (a fine one, 0.0625 C at 4 Hz, and a KVH's
 whole degrees at 1 Hz), simulates three calibration runs (heating -15..50 C, cooling 50..-10 C, a cycle; or
 the programmes given with --calibration) and five held-out runs with other seeds (0..30 C, cooling 40..0 C, a
-ramp faster than any calibration ramp, a soak after a ramp, a fast cycle), trains each scheme the way `fogd-train` does, replays the held-out runs
-through the daemon's compensator and prints the std of 100 s block means after the first 600 s as a
+ramp faster than any calibration ramp, a soak after a ramp, a fast cycle), trains each scheme the way
+`fogd-train` does, replays the held-out runs through the daemon's compensator and prints the std of 100 s block means after the first 600 s as a
 multiple of the noise floor (the same run with its true thermal error removed): 1.00 is perfect. The
 fallback column is the share of the held-out samples that the domain guard sent to its linear fallback.
 
