@@ -1,13 +1,13 @@
 """Held-out accuracy of fogd's compensation on simulated runs that were not used for training.
 
-For each gyro physics (a navigation-grade gyro like the paper's, its thermal error 30-100x the noise floor,
-with a lumped and a diffusive coil) and each temperature sensor (a fine one, 0.0625 C at 4 Hz, and a KVH's
-whole degrees at 1 Hz), simulates three calibration runs (heating -15..50 C, cooling 50..-10 C, a cycle; or
-the programmes given with --calibration) and five held-out runs with other seeds (0..30 C, cooling 40..0 C, a
-ramp faster than any calibration ramp, a soak after a ramp, a fast cycle), trains each scheme the way
-`fogd-train` does, replays the held-out runs through the daemon's compensator and prints the std of 100 s block means after the first 600 s as a
-multiple of the noise floor (the same run with its true thermal error removed): 1.00 is perfect. The
-fallback column is the share of the held-out samples that the domain guard sent to its linear fallback.
+For each gyro physics (a navigation-grade gyro like the paper's, its thermal error 30-100x the noise floor, with a
+lumped and a diffusive coil) and each temperature sensor (a fine one, 0.0625 C at 4 Hz, and a KVH's whole degrees
+at 1 Hz), simulates three calibration runs (heating -15..50 C, cooling 50..-10 C, a cycle; or the programmes given
+with --calibration) and five held-out runs with other seeds (0..30 C, cooling 40..0 C, a ramp faster than any
+calibration ramp, a soak after a ramp, a fast cycle), trains each scheme the way `fogd-train` does, replays the
+held-out runs through the daemon's compensator and prints the std of 100 s block means after the first 600 s as a
+multiple of the noise floor (the same run with its true thermal error removed): 1.00 is perfect. The fallback
+column is the share of the held-out samples that the domain guard sent to its linear fallback.
 
     python tools/accuracy_table.py            # the README's tables (PSO 60 x 100; about an hour on 2 cores)
     python tools/accuracy_table.py --quick    # PSO 20 x 20 (and 10 x 10 inside auto), about 15 minutes
