@@ -32,7 +32,7 @@ def shrunk(monkeypatch):
     monkeypatch.setattr(accuracy_table, "FitOptions", lambda **kw: FitOptions(**{**kw, **TINY}))
     return argparse.Namespace(rate_hz=1.0, seed=1, jobs=1, quick=True, hysteresis_dph=None, hysteresis_deadband_c=None,
                               default_inputs=None, fit_temperature="smoothed", coil_mix="auto", rate_prior="smooth",
-                              physics=None)
+                              physics=None, calibration=None)
 
 
 def test_the_imu_z_gyro_is_the_single_axis_gyro():
