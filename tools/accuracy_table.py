@@ -55,7 +55,7 @@ from fogd.core.inputs import (
 )
 from fogd.core.runio import Run
 from fogd.errors import FogdError
-from fogd.simulation.profiles import Profile, builtin, resolve
+from fogd.simulation.profiles import Profile, resolve
 from fogd.simulation.simulator import SimParams, Simulation, params_for, simulate
 
 CALIBRATION = ("paper-train", "cooling", "cycle")
@@ -80,8 +80,13 @@ SCHEME_KEYS = {SCHEMES[0][0]: "linear", SCHEMES[1][0]: "paper", SCHEMES[2][0]: "
                SCHEMES[4][0]: "guard", AUTO: "auto"}
 
 
+def as_profile(spec: str | Profile) -> Profile:
+    """`spec` itself, or the built-in profile or YAML file it names (fogd.simulation.profiles.resolve)."""
+    return spec if isinstance(spec, Profile) else resolve(spec)
+
+
 def simulated_run(profile: str | Profile, seed: int, rate_hz: float, params) -> Run:
-    profile = builtin(profile) if isinstance(profile, str) else profile
+    profile = as_profile(profile)
     sim = simulate(profile, rate_hz, seed, params)
     digest = hashlib.sha256(sim.rate_dph.tobytes()).hexdigest()
     return Run(f"{profile.name}.csv", sim.t_s, sim.rate_dph, sim.temp_c, rate_hz, digest, {"true_error_dph": sim.true_error_dph})
@@ -89,7 +94,7 @@ def simulated_run(profile: str | Profile, seed: int, rate_hz: float, params) -> 
 
 def calibration_profiles(args) -> list[Profile]:
     """The calibration runs' chamber programmes: `--calibration`'s (built-in names or YAML files), else CALIBRATION."""
-    return [resolve(spec) for spec in (args.calibration or CALIBRATION)]
+    return [as_profile(spec) for spec in (args.calibration or CALIBRATION)]
 
 
 def sim_overrides(args) -> dict[str, float | int | str]:
@@ -155,7 +160,7 @@ def evaluate(args, thermal: str, resolution_c: float, sensor_hz: float) -> dict[
 
 def simulated_imu_run(profile: str | Profile, seed: int, rate_hz: float, params) -> Run:
     """The run `fogd-sim --imu` writes, as `read_run` reads it: every channel, rate_dph its z gyro."""
-    profile = builtin(profile) if isinstance(profile, str) else profile
+    profile = as_profile(profile)
     columns = Simulation(profile, rate_hz, seed, params).imu_columns()
     channels = {channel: columns[channel] for channel in CHANNELS}
     digest = hashlib.sha256(b"".join(values.tobytes() for values in channels.values())).hexdigest()
@@ -311,8 +316,8 @@ def main() -> None:
         params_for("navigation", **sim_overrides(args))
     except ValueError as error:
         parser.error(str(error))
-    try:
-        calibration_profiles(args)
+    try:  # read once, here: every table below simulates these
+        args.calibration = calibration_profiles(args) if args.calibration else None
     except FogdError as error:  # an unknown profile, or a file that is not a profile
         parser.error(str(error))
     for thermal in args.thermal or THERMALS:
@@ -328,7 +333,7 @@ def main() -> None:
             for key, value in args.physics or []:
                 hysteresis += f", {key} {value}"
             if args.calibration:
-                hysteresis += ", calibrated on " + " + ".join(profile.name for profile in calibration_profiles(args))
+                hysteresis += ", calibrated on " + " + ".join(profile.name for profile in args.calibration)
             if args.imu:
                 print_channel_tables(f"Navigation-grade IMU, {thermal} coil, {sensor} sensor; {args.rate_hz:g} Hz, seed "
                                      f"{args.seed}{', PSO 20 x 20' if args.quick else ''}{hysteresis}: std of 100 s block "
