@@ -157,6 +157,20 @@ def test_reencode_changes_only_the_compensated_valid_axes():
     body[28] = 0x73  # gyro Z invalid: never overwritten as if it had been compensated
     invalid_z = KVH.decode(with_crc(bytes(body)))
     assert KVH.reencode(invalid_z, (1.0, 2.0, 3.0))[12:16] == VECTOR_1[12:16]
+    assert KvhProtocol(comp_axes=[2], comp_accel_axes=[]).reencode(invalid_z, (1.0, 2.0, 3.0))[12:16] == VECTOR_1[12:16]
+
+
+@pytest.mark.parametrize("comp_axes", [[2], [0, 1, 2]])
+def test_a_compensated_rate_beyond_float32_goes_out_as_infinity_with_a_good_crc(comp_axes):
+    """A rate near float32's limit, compensated past it: the wire carries +-inf (what a decoder reads as
+    invalid), the other axes as they were, and the CRC still checks; never an exception in the loop."""
+    frame = KVH.decode(VECTOR_1)
+    rates = list(frame.rate_dph)
+    rates[2] = 1e39 * DPH_PER_RAD_S
+    out = KvhProtocol(comp_axes=comp_axes, comp_accel_axes=[]).reencode(frame, rates)  # as a one-channel model plans it
+    assert struct.unpack(">f", out[12:16])[0] == math.inf
+    assert out[4:12] == (VECTOR_1[4:12] if comp_axes == [2] else struct.pack(">2f", *(r / DPH_PER_RAD_S for r in rates[:2])))
+    assert crc32_mpeg2(out) == 0
 
 
 def test_reencode_with_unchanged_rates_gives_the_input_back():

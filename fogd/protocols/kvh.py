@@ -107,6 +107,8 @@ class KvhProtocol(Protocol):
         self.comp_axes = tuple(sorted(set(comp_axes)))
         self.comp_accel_axes = tuple(sorted(set(comp_accel_axes)))
         self._every_gyro, self._every_accel = self.comp_axes == (0, 1, 2), self.comp_accel_axes == (0, 1, 2)
+        # a single compensated gyro and no accelerometer (a one-axis model): its one pack, no loop over axes
+        self._one_gyro = self.comp_axes[0] if len(self.comp_axes) == 1 and not self.comp_accel_axes else None
         per_second = rate_hz if rotfmt == "delta" else 1.0
         self.dph_per_unit = (DPH_PER_RAD_S if angle_unit == "rad" else 3600.0) * per_second
         # delta velocity (m/s or ft/s per sample) x samples per second = m/s^2 or ft/s^2
@@ -259,8 +261,17 @@ class KvhProtocol(Protocol):
         return bytes(out)
 
     def _pack_whole(self, out: bytearray, frame: Frame, rate_dph: Sequence[float], accel_g: Sequence[float] | None) -> bool:
-        """The common frame, every gyro (and every accelerometer) compensated and valid, in one pack; False
-        where `_pack_axes` must go axis by axis (some invalid, a value beyond float32's range)."""
+        """The common frame in one pack: a one-gyro model's axis, or every gyro (and every accelerometer)
+        compensated and valid; False where `_pack_axes` must go axis by axis (some invalid, a value beyond
+        float32's range)."""
+        one = self._one_gyro
+        if one is not None:
+            if frame.axis_valid[one]:  # (an invalid axis keeps its wire value, as in `_pack_axes`)
+                try:
+                    _GYRO.pack_into(out, 4 + 4 * one, rate_dph[one] / self.dph_per_unit)
+                except OverflowError:
+                    return False
+            return True
         if not (self._every_gyro and frame.axis_valid == _EVERY):
             return False
         to_unit = self.dph_per_unit

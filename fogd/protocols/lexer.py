@@ -128,6 +128,8 @@ class Lexer:
                     pos += length
                     append(frame)
                     account(frame, single)
+                    if pos == end:  # the read ended on a frame boundary (the usual read): nothing held back
+                        break
                     continue
             if find is not None:
                 protocol, start = single, find(buf, pos)

@@ -472,11 +472,7 @@ class Daemon:
         hold = self.temperature
         held_c, held_rx_s = hold.temp_c, hold.rx_s
         stale_s, row, read = self.temp_stale_s, self.compensator.process_row, self._read
-        count = len(self._names)
-        rows, device_s, readings, temps, temp_rates = [], [], [], [], []
-        comps: list[list[float]] = [[] for _ in range(count)]
-        outs: list[list[float]] = [[] for _ in range(count)]
-        flags: list[list[int]] = [[] for _ in range(count)]
+        rows, device_s, results = [], [], []
         out_of_domain = clamped = 0
         for index, frame in enumerate(frames):
             kind = frame.kind
@@ -485,30 +481,28 @@ class Daemon:
             if kind not in RATE_KINDS:
                 continue
             values, usable = read(frame)
-            temp_used, temp_rate, row_comps, row_outs, row_flags = row(values, usable, held_c,
-                                                                       t_rx_s[index] - held_rx_s > stale_s)  # fmt: skip
+            result = row(values, usable, held_c, t_rx_s[index] - held_rx_s > stale_s)
             rows.append(index)
             device_s.append(frame.t_s)
-            readings.append(values[0])
-            temps.append(temp_used)
-            temp_rates.append(temp_rate)
+            results.append((values[0], result))
             any_flags = 0
-            for k in range(count):
-                comps[k].append(row_comps[k])
-                outs[k].append(row_outs[k])
-                flags[k].append(row_flags[k])
-                any_flags |= row_flags[k]
-            if any_flags & _OUT_OF_DOMAIN:
-                out_of_domain += 1
-            if any_flags & _CLAMPED:
-                clamped += 1
+            for flags in result[4]:
+                any_flags |= flags
+            if any_flags:
+                out_of_domain += bool(any_flags & _OUT_OF_DOMAIN)
+                clamped += bool(any_flags & _CLAMPED)
         hold.temp_c, hold.rx_s = held_c, held_rx_s
-        self.counters.samples_out_of_domain += out_of_domain
-        self.counters.samples_clamped += clamped
+        if out_of_domain or clamped:
+            self.counters.samples_out_of_domain += out_of_domain
+            self.counters.samples_clamped += clamped
+        readings = [reading for reading, _ in results]
+        temps = [result[0] for _, result in results]
+        temp_rates = [result[1] for _, result in results]
         # every channel's temperature columns are the first channel's (what every output format reports)
-        results = {name: Compensated(temps, temp_rates, comps[k], outs[k], flags[k])  # type: ignore[arg-type]
+        columns = {name: Compensated(temps, temp_rates, [result[2][k] for _, result in results],  # type: ignore[arg-type]
+                                     [result[3][k] for _, result in results], [result[4][k] for _, result in results])
                    for k, name in enumerate(self._names)}  # fmt: skip
-        return self._batch(frames, t_rx_s, rows, device_s, readings, results[self._names[0]], results)
+        return self._batch(frames, t_rx_s, rows, device_s, readings, columns[self._names[0]], columns)
 
     def _read(self, frame: Frame) -> tuple[list[float], list[bool]]:
         """A rate frame's reading and usability of every covered channel (an accelerometer a frame lacks is NaN

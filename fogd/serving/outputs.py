@@ -107,17 +107,13 @@ class Formatter:
 
     def _same(self, batch: OutputBatch) -> list[bytes]:
         """Every input frame, rate frames re-encoded with the compensated rate and a fresh CRC."""
-        compensated = dict(zip(batch.rate_rows, _values(batch.comp.rate_comp_dph)))
-        axis, reencode = self.axis, self.protocol.reencode
-        pieces = []
-        for index, frame in enumerate(batch.frames):
-            rate_comp = compensated.get(index)
-            if rate_comp is None:
-                pieces.append(frame.raw)
-                continue
+        axis, reencode, frames = self.axis, self.protocol.reencode, batch.frames
+        pieces = [frame.raw for frame in frames]
+        for row, rate_comp in zip(batch.rate_rows, _values(batch.comp.rate_comp_dph)):
+            frame = frames[row]
             rates = list(frame.rate_dph)
             rates[axis] = rate_comp
-            pieces.append(reencode(frame, rates))
+            pieces[row] = reencode(frame, rates)
         return pieces
 
     def _fogd(self, batch: OutputBatch) -> list[bytes]:
