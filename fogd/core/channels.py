@@ -435,7 +435,8 @@ class ChannelCompensator:
         the temperature held for the sample and whether it is stale. Returns (the first channel's temperature
         used and temperature rate, then per channel its compensation, compensated reading and flags): the very
         floats and flags `process_few` gives for a one-sample batch, in plain Python (no per-row numpy call
-        outside a large model's kernel), the inputs computed once per input bank."""
+        outside a large model's kernel), the inputs computed once per input bank. The three lists are new at
+        each call: the daemon keeps them as a one-frame batch's columns."""
         low_c, high_c = TEMP_VALID_C
         count = len(values)
         comps, outs, flags_out = [0.0] * count, [0.0] * count, [0] * count

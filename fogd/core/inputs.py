@@ -400,7 +400,7 @@ class InputBank:
         """Feed one finite temperature; its input row as Python floats, the same floats `update` gives."""
         self.count += 1
         if not self._dequantisers:
-            return tuple(temp_c if estimator is None else estimator.update_one(temp_c) for estimator in self._estimators)
+            return tuple([temp_c if estimator is None else estimator.update_one(temp_c) for estimator in self._estimators])
         sources = {None: temp_c} | {key: dq.update_one(temp_c) for key, dq in self._dequantisers.items()}
-        return tuple(sources[key] if estimator is None else estimator.update_one(sources[key])
-                     for key, estimator in zip(self._sources, self._estimators))  # fmt: skip
+        return tuple([sources[key] if estimator is None else estimator.update_one(sources[key])
+                      for key, estimator in zip(self._sources, self._estimators)])  # fmt: skip

@@ -142,6 +142,9 @@ class SampleClock:
     def times(self, device_s: list[float | None]) -> list[float]:
         first, rate_hz = self.count, self.rate_hz
         self.count += len(device_s)
+        if len(device_s) == 1:  # the usual batch at real rates: no comprehension to set up
+            t_s = device_s[0]
+            return [first / rate_hz if t_s is None or t_s != t_s else t_s]
         return [(first + i) / rate_hz if t_s is None or t_s != t_s else t_s for i, t_s in enumerate(device_s)]
 
 
@@ -409,10 +412,12 @@ class Daemon:
         )  # fmt: skip
 
     def _drain(self) -> None:
+        """Compensate and hand on every batch in the ring."""
         while True:
             frames, t_rx_s = self.ring.pop(MAX_BATCH)
             if not frames:
                 return
+            more = len(frames) == MAX_BATCH  # a short pop emptied the ring: no second pop to find it empty
             self.counters.records_popped += len(frames)
             try:
                 batch = self.compensate(frames, t_rx_s)
@@ -424,6 +429,8 @@ class Daemon:
             except Exception as error:  # a value the output format cannot carry: drop that frame alone
                 chunk = self._encode_each(batch, error)
             self.writer.submit(chunk)
+            if not more:
+                return
 
     def _encode_each(self, batch: OutputBatch, error: Exception) -> Chunk:
         """The batch encoded frame by frame, leaving out (and counting) the frames that cannot be encoded."""
@@ -495,10 +502,14 @@ class Daemon:
         if out_of_domain or clamped:
             self.counters.samples_out_of_domain += out_of_domain
             self.counters.samples_clamped += clamped
+        # every channel's temperature columns are the first channel's (what every output format reports)
+        if len(results) == 1 and self.plan.single:  # the usual batch at real rates: process_row's own lists
+            (reading, (temp, temp_rate, comps, outs, flags)), = results
+            comp = Compensated([temp], [temp_rate], comps, outs, flags)  # type: ignore[arg-type]
+            return self._batch(frames, t_rx_s, rows, device_s, [reading], comp, None)
         readings = [reading for reading, _ in results]
         temps = [result[0] for _, result in results]
         temp_rates = [result[1] for _, result in results]
-        # every channel's temperature columns are the first channel's (what every output format reports)
         columns = {name: Compensated(temps, temp_rates, [result[2][k] for _, result in results],  # type: ignore[arg-type]
                                      [result[3][k] for _, result in results], [result[4][k] for _, result in results])
                    for k, name in enumerate(self._names)}  # fmt: skip
@@ -521,8 +532,9 @@ class Daemon:
         return values, usable
 
     def _batch(self, frames: list[Frame], t_rx_s: list[float], rows: list[int], device_s: list[float | None],
-               readings: list[float], comp: Compensated, comps: dict[str, Compensated]) -> OutputBatch:  # fmt: skip
-        """The compensated batch for the formatter; counters, latency and the newest sample noted."""
+               readings: list[float], comp: Compensated, comps: dict[str, Compensated] | None) -> OutputBatch:  # fmt: skip
+        """The compensated batch for the formatter; counters, latency and the newest sample noted. `comps`:
+        every channel's columns (None: one channel, `comp`)."""
         self.counters.samples_compensated += len(rows)
         if frames:
             latency_s = time.monotonic() - t_rx_s[0]  # the oldest frame waited longest

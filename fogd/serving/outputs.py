@@ -510,6 +510,7 @@ class Writer:
         self._done = 0
         self._tail = b""  # the unwritten rest of a frame begun on the wire (writer thread's, set before _done)
         self._give_up_s = math.inf  # monotonic time after which queued chunks are counted, not written (exit)
+        self._running = False  # the thread is in `_run` (a flag: `Thread.is_alive` is three Python calls a submit)
 
     def start(self, header: bytes = b"") -> None:
         if header:
@@ -517,6 +518,7 @@ class Writer:
                 self.sink.write(header, self.write_timeout_s)
             except SinkError:
                 pass  # the frames' own writes report the error
+        self._running = True
         self._thread.start()
 
     @property
@@ -528,7 +530,7 @@ class Writer:
         if not chunk.frame_ends:
             return
         self.counters.frames_submitted += len(chunk.frame_ends)
-        if not self.sink.blocking and self._queued == self._done and not self._tail and self._thread.is_alive():
+        if not self.sink.blocking and self._queued == self._done and not self._tail and self._running:
             rest = self._write_now(chunk)
             if rest is None:
                 return
@@ -590,6 +592,8 @@ class Writer:
         except BaseException as error:  # the daemon notices a dead writer through `alive` and `error`
             self.error = error
             raise
+        finally:
+            self._running = False
 
     def _finish_tail(self) -> None:
         """At exit: finish a frame begun on the wire, or count it cut."""
