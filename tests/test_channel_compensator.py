@@ -181,6 +181,11 @@ def test_one_channel_is_not_stacked():
     assert one.stacked == ()
 
 
+ROW_MODEL_SETS = {"three channels": None, "linear alone": "rate_x_dph", "lags alone": "rate_y_dph",
+                  "kernel alone": "accel_z_g"}  # fmt: skip
+
+
+@pytest.mark.parametrize("alone", ROW_MODEL_SETS.values(), ids=ROW_MODEL_SETS.keys())
 @settings(max_examples=30, deadline=None)
 @given(
     chunks=st.lists(st.integers(1, 40), max_size=8),
@@ -188,13 +193,16 @@ def test_one_channel_is_not_stacked():
     bad_rate=st.lists(st.integers(0, ROWS - 1), max_size=15),
     seed=st.integers(0, 3),
 )
-def test_process_row_is_process_few_of_one_sample(chunks, bad_temp, bad_rate, seed):
+def test_process_row_is_process_few_of_one_sample(alone, chunks, bad_temp, bad_rate, seed):
     """The daemon's pre-bound one-sample path gives the floats and flags of `process_few` (a one-sample batch),
-    bit for bit, and leaves the same state behind: batches after a run of rows go on as after process_few."""
+    bit for bit, and leaves the same state behind: batches after a run of rows go on as after process_few.
+    One channel alone takes its own row form (no walk over banks and parts), checked the same way."""
     run = imu_run(seed, bad_temp, bad_rate)
     stale = (np.arange(ROWS) % 53 == 0).tolist()
-    usable = {name: (np.arange(ROWS) % 97 != 0).tolist() if name == "rate_y_dph" else [True] * ROWS for name in models()}
-    by_row, by_few = ChannelCompensator(models(), RATE_HZ), ChannelCompensator(models(), RATE_HZ)
+    usable = {name: (np.arange(ROWS) % 97 != 0).tolist() if name in ("rate_y_dph", alone) else [True] * ROWS for name in models()}
+    chosen = (lambda: models()) if alone is None else (lambda: {alone: models()[alone]})
+    by_row, by_few = ChannelCompensator(chosen(), RATE_HZ), ChannelCompensator(chosen(), RATE_HZ)
+    assert (getattr(by_row.process_row, "__func__", None) is ChannelCompensator._process_one) == (alone is not None)
     names = by_row.channels
     values = {name: run.channels[name].tolist() for name in names}
     temps = run.temp_c.tolist()
