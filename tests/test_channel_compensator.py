@@ -181,11 +181,23 @@ def test_one_channel_is_not_stacked():
     assert one.stacked == ()
 
 
-ROW_MODEL_SETS = {"three channels": None, "linear alone": "rate_x_dph", "lags alone": "rate_y_dph",
-                  "kernel alone": "accel_z_g"}  # fmt: skip
+def guarded_model(kind: str) -> FrozenModel:
+    """The kernel model with a domain guard of `kind` around 20-25 C and 0.091-0.121 C/s (scaled 0..0.5 and
+    9..12): imu_run's rows (20-28 C, 0.09-0.13 C/s) go in and out of it."""
+    doc = make_doc("pso-svr")
+    doc["domain_guard"] = {"points": [[s, r] for s in np.linspace(0.0, 0.5, 11) for r in (9.0, 10.0, 11.0, 12.0)],
+                           "threshold": 0.2, "kind": kind,
+                           "fallback": {"method": "linear", "params": {"coef": [0.05, 0.0], "intercept": 0.1}}}  # fmt: skip
+    return modelfile.from_document(doc)
 
 
-@pytest.mark.parametrize("alone", ROW_MODEL_SETS.values(), ids=ROW_MODEL_SETS.keys())
+ROW_MODEL_SETS = {"three channels": (None, None), "linear alone": ("rate_x_dph", None),
+                  "lags alone": ("rate_y_dph", None), "kernel alone": ("accel_z_g", None),
+                  "range-guarded kernel alone": ("accel_z_g", "range"), "joint-guarded kernel alone": ("accel_z_g", "joint"),
+                  "three channels, the kernel range-guarded": (None, "range")}  # fmt: skip
+
+
+@pytest.mark.parametrize(("alone", "guard"), ROW_MODEL_SETS.values(), ids=ROW_MODEL_SETS.keys())
 @settings(max_examples=30, deadline=None)
 @given(
     chunks=st.lists(st.integers(1, 40), max_size=8),
@@ -193,14 +205,19 @@ ROW_MODEL_SETS = {"three channels": None, "linear alone": "rate_x_dph", "lags al
     bad_rate=st.lists(st.integers(0, ROWS - 1), max_size=15),
     seed=st.integers(0, 3),
 )
-def test_process_row_is_process_few_of_one_sample(alone, chunks, bad_temp, bad_rate, seed):
+def test_process_row_is_process_few_of_one_sample(alone, guard, chunks, bad_temp, bad_rate, seed):
     """The daemon's pre-bound one-sample path gives the floats and flags of `process_few` (a one-sample batch),
     bit for bit, and leaves the same state behind: batches after a run of rows go on as after process_few.
-    One channel alone takes its own row form (no walk over banks and parts), checked the same way."""
+    One channel alone takes its own row form (no walk over banks and parts), checked the same way; a domain
+    guard sends some rows to its fallback on both paths."""
     run = imu_run(seed, bad_temp, bad_rate)
     stale = (np.arange(ROWS) % 53 == 0).tolist()
     usable = {name: (np.arange(ROWS) % 97 != 0).tolist() if name in ("rate_y_dph", alone) else [True] * ROWS for name in models()}
-    chosen = (lambda: models()) if alone is None else (lambda: {alone: models()[alone]})
+    def chosen() -> dict[str, FrozenModel]:
+        every = {**models(), **({"accel_z_g": guarded_model(guard)} if guard else {})}
+        return every if alone is None else {alone: every[alone]}
+
+    fallbacks = set()
     by_row, by_few = ChannelCompensator(chosen(), RATE_HZ), ChannelCompensator(chosen(), RATE_HZ)
     assert (getattr(by_row.process_row, "__func__", None) is ChannelCompensator._process_one) == (alone is not None)
     names = by_row.channels
@@ -221,6 +238,8 @@ def test_process_row_is_process_few_of_one_sample(alone, chunks, bad_temp, bad_r
                 assert np.float64(comps[k]).tobytes() == np.float64(want[name].comp_dph[0]).tobytes(), name
                 assert np.float64(outs[k]).tobytes() == np.float64(want[name].rate_comp_dph[0]).tobytes(), name
                 assert flags[k] == want[name].flags[0], name
+                if name == "accel_z_g" and not flags[k] & Flag.WARMUP:
+                    fallbacks.add(bool(flags[k] & Flag.OUT_OF_DOMAIN))
         start = stop
         if start >= ROWS:
             break
@@ -234,6 +253,7 @@ def test_process_row_is_process_few_of_one_sample(alone, chunks, bad_temp, bad_r
         start = stop
         if start >= ROWS:
             break
+    assert guard is None or fallbacks == {True, False}, "the guard sends some rows (not all) to its fallback"
 
 
 def test_process_row_goes_on_with_a_bank_handed_over():

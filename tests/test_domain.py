@@ -2,9 +2,12 @@
 and in training."""
 
 import json
+import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from fogd.core import modelfile
 from fogd.core.compensator import Compensator
@@ -187,3 +190,32 @@ def test_training_keeps_the_joint_guard_for_the_papers_inputs():
     config = TrainConfig(method="linear", inputs=parse_inputs("temp,rate@50"), block_s=50.0,
                          fit=FitOptions(progress=False), domain_guard=True)  # fmt: skip
     assert train(runs, config).model.meta["domain_guard"].kind == "joint"
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    kind=st.sampled_from(["range", "joint"]),
+    seed=st.integers(0, 2**16),
+    threshold=st.floats(0.01, 2.0),
+    special=st.lists(st.sampled_from([math.nan, math.inf, -math.inf]), max_size=2),
+)
+def test_outside_one_answers_as_outside_does(kind, seed, threshold, special):
+    """The row path's `outside_one` (Python floats for a range guard) gives `outside`'s answer for every row:
+    inside, just beyond the margin in either direction, far out, NaN and infinite inputs."""
+    rng = np.random.default_rng(seed)
+    columns = int(rng.integers(2, 6))
+    points = rng.normal(0.0, 1.0, (int(rng.integers(1, 30)), columns))
+    x_mean, x_scale = rng.normal(20.0, 5.0, columns), rng.uniform(0.001, 10.0, columns)
+    shared = tuple(sorted(set(rng.integers(0, columns, 2).tolist()))) if kind == "range" else ()
+    guard = DomainGuard(points, threshold, x_mean, x_scale, fallback=None, kind=kind, shared=shared)
+    low, high = points.min(axis=0), points.max(axis=0)
+    scaled = rng.uniform(low - 2 * threshold, high + 2 * threshold, (200, columns))
+    edge = rng.integers(0, columns, 100)
+    scaled[np.arange(100), edge] = np.where(rng.random(100) < 0.5, low[edge] - threshold, high[edge] + threshold)
+    scaled[100:130] = points[rng.integers(0, len(points), 30)] + rng.normal(0.0, threshold / 8, (30, columns))
+    raw = scaled * x_scale + x_mean
+    for row, value in enumerate(special):
+        raw[row, row % columns] = value
+    want = guard.outside(raw).tolist()
+    assert [guard.outside_one(tuple(row)) for row in raw.tolist()] == want
+    assert True in want and False in want

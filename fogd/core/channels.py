@@ -250,7 +250,7 @@ class _Stack:
                 comps, clamped = models.predict_one(x)
                 if guards and not flags & _WARMUP:
                     for index, guard in guards:
-                        if guard.outside(np.array(x))[0]:
+                        if guard.outside_one(x):
                             if outside is none:
                                 comps, outside = list(comps), list(none)
                             comps[index] = guard.fallback.predict_one(x)[0]
@@ -338,10 +338,9 @@ class ChannelCompensator:
         stacked = {channel for stack in self._stacks for channel in stack.channels}
         self._alone = {channel: compensator for channel, compensator in self.compensators.items() if channel not in stacked}
         self._rows = self._row_groups()
-        alone = next(iter(self._alone.values()), None)
-        if len(self.compensators) == 1 and alone is not None and alone.guard is None:
-            # one channel without a domain guard (a single-axis model, the daemon's usual one): its own row form
-            self._predict_one = alone.model.predict_one
+        if len(self.compensators) == 1:  # one channel (a single-axis model, the daemon's usual one): its own row form
+            alone = next(iter(self.compensators.values()))
+            self._predict_one, self._guard = alone.model.predict_one, alone.guard
             self.process_row = self._process_one  # type: ignore[method-assign]
 
     @property
@@ -475,7 +474,7 @@ class ChannelCompensator:
                     outside = None
                     if guards and not flags & _WARMUP:
                         for index, guard in guards:
-                            if guard.outside(np.array(x))[0]:
+                            if guard.outside_one(x):
                                 if outside is None:
                                     part_comps, outside = list(part_comps), [False] * len(part_comps)
                                 part_comps[index] = guard.fallback.predict_one(x)[0]
@@ -503,8 +502,8 @@ class ChannelCompensator:
     def _process_one(
         self, values: list[float], usable: list[bool], temp_c: float, temp_stale: bool
     ) -> tuple[float, float, list[float], list[float], list[int]]:
-        """`process_row` of one channel without a guard: the same floats, flags and state, without the walk
-        over banks, parts and channels (a third of a one-axis row's cost)."""
+        """`process_row` of one channel: the same floats, flags and state, without the walk over banks, parts
+        and channels (a third of a one-axis row's cost)."""
         group = self._rows[0]
         compensator = group.compensators[0]
         flags = _TEMP_STALE if temp_stale else 0
@@ -525,6 +524,10 @@ class ChannelCompensator:
             comp, clamped = self._predict_one(x)
             if clamped:
                 flags |= _CLAMPED
+            guard = self._guard
+            if guard is not None and not flags & _WARMUP and guard.outside_one(x):
+                comp = guard.fallback.predict_one(x)[0]
+                flags |= _OUT_OF_DOMAIN
         else:
             flags |= _WARMUP
         value = values[0]

@@ -170,7 +170,7 @@ class Compensator:
                     flags |= _WARMUP
                 x = bank.update_one(held)
                 comp, clamped = model.predict_one(x)
-                if guard is not None and not flags & _WARMUP and guard.outside(np.array(x))[0]:
+                if guard is not None and not flags & _WARMUP and guard.outside_one(x):
                     comp = guard.fallback.predict_one(x)[0]
                     flags |= _OUT_OF_DOMAIN
                 if clamped:

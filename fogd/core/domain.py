@@ -139,9 +139,28 @@ class DomainGuard:
             return self._outside(rows)[inverse]
         return self._outside(x)
 
+    def outside_one(self, x: tuple[float, ...]) -> bool:
+        """`outside` of one raw input row (the daemon's row path): the same answer; a range guard in Python
+        floats, the very operations of `range_excursion` (the margin is positive, so no column beyond it is
+        the same as the largest excursion within it), without a numpy call per row."""
+        if self.kind != "range":
+            return bool(self.outside(np.array(x))[0])
+        threshold = self.threshold
+        for value, mean, scale, low, high in zip(x, *self._range_columns):
+            scaled = (value - mean) / scale
+            if not (scaled - high <= threshold and low - scaled <= threshold):  # NaN is outside
+                return True
+        return False
+
     @cached_property
     def _box(self) -> tuple[np.ndarray, np.ndarray]:
         return range_box(self.points, self.x_mean, self.x_scale, self.shared)
+
+    @cached_property
+    def _range_columns(self) -> tuple[list[float], ...]:
+        """Per input as Python floats: mean, scale and the box's low and high (scaled units)."""
+        low, high = self._box
+        return self.x_mean.tolist(), self.x_scale.tolist(), low.tolist(), high.tolist()
 
     def _outside(self, x: np.ndarray) -> np.ndarray:
         distance = nearest_distance((x - self.x_mean) / self.x_scale, self.points)
