@@ -154,42 +154,47 @@ class Compensator:
         """`process` of a few samples given as Python lists (the daemon's batches at real rates), one sample at
         a time in Python floats: the same policies, in the same order. The result holds lists, not arrays: a
         frame's values go on to its encoding without a numpy call on the way."""
-        low_c, high_c = TEMP_VALID_C
-        bank, model, guard, rate_column = self.bank, self.model, self.guard, self._rate_column
+        bank, sample = self.bank, self.sample
         temps, temp_rates, comps, rates_out, flags_out = [], [], [], [], []
         for rate, temp, rate_ok, is_stale in zip(rate_dph, temp_c, rate_valid, temp_stale):
-            flags = 0
-            if low_c <= temp <= high_c:  # (NaN is not)
-                self._held_temp_c = temp
-            else:
-                flags |= _TEMP_INVALID
-            held = self._held_temp_c
-            temp_rate = comp = 0.0
-            if held == held:  # a valid temperature has been seen
-                if bank.count < bank.warmup:
-                    flags |= _WARMUP
-                x = bank.update_one(held)
-                comp, clamped = model.predict_one(x)
-                if guard is not None and not flags & _WARMUP and guard.outside_one(x):
-                    comp = guard.fallback.predict_one(x)[0]
-                    flags |= _OUT_OF_DOMAIN
-                if clamped:
-                    flags |= _CLAMPED
-                if rate_column is not None:
-                    temp_rate = x[rate_column]
-            else:
-                flags |= _WARMUP
-            rate_ok = rate_ok and math.isfinite(rate)
-            if not rate_ok:
-                flags |= _RATE_INVALID
-            if is_stale:
-                flags |= _TEMP_STALE
+            held, temp_rate, comp, rate_comp, flags = sample(bank, rate, temp, rate_ok, is_stale)
             temps.append(held)
             temp_rates.append(temp_rate)
             comps.append(comp)
-            rates_out.append(rate - comp if rate_ok else rate)
+            rates_out.append(rate_comp)
             flags_out.append(flags)
         return Compensated(temps, temp_rates, comps, rates_out, flags_out)  # type: ignore[arg-type]
+
+    def sample(self, bank: InputBank, rate: float, temp: float, rate_ok: bool, is_stale: bool) -> tuple[float, float, float, float, int]:
+        """One sample of `process_few`, its inputs from `bank` (the compensator's own, or the shared bank a
+        one-channel fogd.core.channels.ChannelCompensator feeds directly): the temperature used, its rate, the
+        compensation, the compensated rate and the flags."""
+        flags = _TEMP_STALE if is_stale else 0
+        low_c, high_c = TEMP_VALID_C
+        if low_c <= temp <= high_c:  # (NaN is not)
+            self._held_temp_c = temp
+        else:
+            flags |= _TEMP_INVALID
+        held = self._held_temp_c
+        temp_rate = comp = 0.0
+        if held == held:  # a valid temperature has been seen
+            if bank.count < bank.warmup:
+                flags |= _WARMUP
+            x = bank.update_one(held)
+            comp, clamped = self.model.predict_one(x)
+            guard = self.guard
+            if guard is not None and not flags & _WARMUP and guard.outside_one(x):
+                comp = guard.fallback.predict_one(x)[0]
+                flags |= _OUT_OF_DOMAIN
+            if clamped:
+                flags |= _CLAMPED
+            if self._rate_column is not None:
+                temp_rate = x[self._rate_column]
+        else:
+            flags |= _WARMUP
+        if rate_ok and math.isfinite(rate):
+            return held, temp_rate, comp, rate - comp, flags
+        return held, temp_rate, comp, rate, flags | _RATE_INVALID
 
     def _hold(self, temp_c: np.ndarray, valid: np.ndarray) -> np.ndarray:
         held = hold_temperature(temp_c, valid, self._held_temp_c)
