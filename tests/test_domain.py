@@ -208,11 +208,12 @@ def test_outside_one_answers_as_outside_does(kind, seed, threshold, special):
     x_mean, x_scale = rng.normal(20.0, 5.0, columns), rng.uniform(0.001, 10.0, columns)
     shared = tuple(sorted(set(rng.integers(0, columns, 2).tolist()))) if kind == "range" else ()
     guard = DomainGuard(points, threshold, x_mean, x_scale, fallback=None, kind=kind, shared=shared)
-    low, high = points.min(axis=0), points.max(axis=0)
+    low, high = range_box(points, x_mean, x_scale, shared) if kind == "range" else (points.min(axis=0), points.max(axis=0))
     scaled = rng.uniform(low - 2 * threshold, high + 2 * threshold, (200, columns))
     edge = rng.integers(0, columns, 100)
     scaled[np.arange(100), edge] = np.where(rng.random(100) < 0.5, low[edge] - threshold, high[edge] + threshold)
     scaled[100:130] = points[rng.integers(0, len(points), 30)] + rng.normal(0.0, threshold / 8, (30, columns))
+    scaled[130:140] = high + 1.0 + 3 * threshold  # far beyond every point and the box in every column
     raw = scaled * x_scale + x_mean
     for row, value in enumerate(special):
         raw[row, row % columns] = value
