@@ -3,8 +3,9 @@
 A harness writes KVH Format A frames (sequence 0..127, valid z rate, whole-degree temperature) to the master
 of one pty, whose slave is the process's --port, and reads the process's output from the master of another
 pty, whose slave is its --out (fogd: --protocol kvh-a --out-format same). One select() loop does both, so
-writing and reading timestamps share one clock. Six processes in one run: fogd with the bundled demo model
-(the paper's inputs), fogd with fogd-train's default lag-bank model (fitted here on a simulated run with a
+writing and reading timestamps share one clock. Seven processes in one run: fogd with the bundled demo model
+(the paper's inputs), the same with `--cpu any` (the kernel places its threads; fogd keeps them on one CPU
+by default, fogd.serving.placement), fogd with fogd-train's default lag-bank model (fitted here on a simulated run with a
 small swarm) on one axis, fogd with that model on the three gyros and on all six channels of the IMU frames
 (version-3 files, as fogd-train writes for an IMU), the relay, and the relay split over two Python threads as
 fogd splits its work (the floor of that design before any work is done). Targets are issue 13's, for one axis, and issue
@@ -84,6 +85,7 @@ TARGET_RSS_MB = 60.0
 THREADS = "two threads, no work"  # bench_relay.py --threads: the floor of a reader thread handing reads over
 SIX = "fogd, six channels (lag-bank)"
 THREE = "fogd, three gyros (lag-bank)"
+ANY_CPU = "fogd, --cpu any"  # the demo model with the kernel placing the threads (fogd keeps them on one CPU)
 TARGET_SIX_RATIO = 1.5  # issue 12: throughput and latency with six channels within 1.5x of one channel's
 
 
@@ -282,9 +284,9 @@ class Harness:
         return stderr.decode(errors="replace").strip()[-2000:]
 
 
-def fogd_command(model: str, switch_interval_s: float | None = None):
+def fogd_command(model: str, switch_interval_s: float | None = None, cpu: str | None = None):
     """The real daemon; with `switch_interval_s`, started through sys.setswitchinterval (an experiment: how
-    long a thread that wants the GIL waits for one that computes)."""
+    long a thread that wants the GIL waits for one that computes); with `cpu`, its --cpu."""
     if switch_interval_s is None:
         start = ["-m", "fogd.cli.daemon"]
     else:
@@ -293,7 +295,8 @@ def fogd_command(model: str, switch_interval_s: float | None = None):
 
     def command(port: str, out: str) -> list[str]:
         return [sys.executable, *start, "--port", port, "--protocol", "kvh-a", "--out", out,
-                "--out-format", "same", "--model", model, "--rate-hz", "1000", "--status-interval-s", "3600", "-q"]  # fmt: skip
+                "--out-format", "same", "--model", model, "--rate-hz", "1000", "--status-interval-s", "3600", "-q",
+                *(["--cpu", cpu] if cpu is not None else [])]  # fmt: skip
     return command
 
 
@@ -591,6 +594,7 @@ def main(argv: list[str] | None = None) -> int:
         imu_model = str(six_channel_path(Path(lag_model)))
         results = {
             "fogd": measure("fogd", fogd_command(args.model), rates, step_s, latency_s, cpu_s),
+            ANY_CPU: measure(ANY_CPU, fogd_command(args.model, cpu="any"), rates, step_s, latency_s, cpu_s),
             "fogd, lag-bank model": measure("fogd, lag-bank model", fogd_command(lag_model), rates, step_s, latency_s, cpu_s),
             THREE: measure(THREE, fogd_command(str(three_channel_path(Path(lag_model)))), rates, step_s, latency_s, cpu_s),
             SIX: measure(SIX, fogd_command(imu_model), rates, step_s, latency_s, cpu_s),
@@ -639,14 +643,17 @@ def main(argv: list[str] | None = None) -> int:
     per_frame = []
     for hz in CPU_RATES:
         fogd_step, floor, bare = results["fogd"]["cpu"][hz], results[THREADS]["cpu"][hz], relay["cpu"][hz]
+        anywhere = results[ANY_CPU]["cpu"][hz]
         us = 1e6 / (fogd_step.elapsed_s * hz)
         per_frame.append([f"{hz:,.0f}", f"{fogd_step.cpu_s * us:.0f}", f"{fogd_step.main_cpu_s * us:.0f}",
                           f"{(fogd_step.cpu_s - fogd_step.main_cpu_s) * us:.0f}",
+                          f"{anywhere.cpu_s * 1e6 / (anywhere.elapsed_s * hz):.0f}",
                           f"{floor.cpu_s * 1e6 / (floor.elapsed_s * hz):.0f}", f"{bare.cpu_s * 1e6 / (bare.elapsed_s * hz):.0f}"])  # fmt: skip
     print_table("3h. CPU per frame (us, the scheduler's count): fogd's loop thread (pop, compensate, encode, write) and "
-                "its reader and writer threads (poll, read, lex, CRC, push), beside two Python threads that only hand "
+                "its reader and writer threads (poll, read, lex, CRC, push), beside fogd with --cpu any, two Python threads that only hand "
                 "each read over and the one-thread relay",
-                ["frames/s", "fogd", "fogd loop thread", "fogd other threads", THREADS, "relay"], per_frame)  # fmt: skip
+                ["frames/s", "fogd", "fogd loop thread", "fogd other threads", "fogd, --cpu any", THREADS, "relay"],
+                per_frame)  # fmt: skip
     ratios = []
     for label in (label for label in results if label != "relay"):
         r = results[label]

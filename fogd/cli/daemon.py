@@ -33,6 +33,7 @@ from fogd.serving.channels import plan as channel_plan
 from fogd.serving.config import AXES, OPTION_BY_KEY, OPTIONS
 from fogd.serving.daemon import RING_CAPACITY, Daemon, Reload
 from fogd.serving.outputs import Formatter, Writer, open_sink
+from fogd.serving.placement import Placement
 from fogd.serving.reader import Reader
 from fogd.serving.ring import Ring
 from fogd.serving.sdnotify import Notifier
@@ -314,6 +315,7 @@ def serve(settings: dict[str, Any], protocol: protocols.Protocol, model, *, on_d
         reload=reloader(sources, settings) if sources is not None else None,
         stats_path=stats_path,
         info={"instance": instance, "port": path, "protocol": protocol.name, "out": settings["out"]},
+        placement=Placement(settings["cpu"]),
     )
     if settings["metrics_port"] is not None:
         from fogd.serving import prometheus

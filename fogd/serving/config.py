@@ -23,6 +23,7 @@ from fogd.core.numbers import number_in, whole_number
 from fogd.core.yamlfile import YamlFileError, read_yaml
 from fogd.errors import ConfigError, describe_os_error
 from fogd.protocols import kvh
+from fogd.serving import placement
 
 CONFIG_DIR = "/etc/fogd"
 CONFIG_DIR_ENV = "FOGD_CONFIG_DIR"
@@ -142,6 +143,10 @@ OPTIONS = (
            "counted as implausible) that jumps by more than this from both the previous and the last accepted "
            "rate, on lines without a checksum (DSP-3000 lines always) (deg/h, above 0; default: off)", "deg/h",
            "DPH", reloadable=False),
+    Option("cpu", placement.cpu_setting, "cpu", placement.AUTO, "CPU the daemon's threads run on: 'auto' keeps them "
+           "together on the CPU fogd starts on and moves them when other processes keep it busy; a number keeps "
+           "them there; 'any' lets the kernel place each thread (together they cost less CPU: one cache, no "
+           "cross-CPU wake-ups) (default: %(default)s)", metavar="auto|any|N"),
     Option("metrics_address", _address, "text", "127.0.0.1", "address the metrics endpoint binds to "
            "(default: %(default)s; anything else exposes it beyond this machine)", metavar="ADDR"),
 )
@@ -205,6 +210,13 @@ def _value(path: str, option: Option, value: Any) -> Any:
         if not isinstance(value, bool):
             raise ConfigError(f"{where} must be true or false, found {_show(value)}")
         return value
+    if option.kind == "cpu":  # a word or a CPU number
+        if isinstance(value, bool) or not isinstance(value, (int, str)):
+            raise ConfigError(f"{where} must be auto, any or a CPU number, found {_show(value)}")
+        try:
+            return option.convert(str(value))
+        except argparse.ArgumentTypeError as error:
+            raise ConfigError(f"{where}: {error}") from None
     if option.kind in ("number", "port"):
         # YAML 1.1 reads 1e3 as a string: accept text that is a number, refuse everything else
         ok_type = isinstance(value, (int, float, str)) and not isinstance(value, bool)

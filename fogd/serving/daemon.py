@@ -43,6 +43,7 @@ from fogd.errors import ConfigError, FogdError
 from fogd.protocols.base import Frame
 from fogd.serving.channels import ChannelPlan, as_models, method, plan
 from fogd.serving.outputs import Chunk, Formatter, OutputBatch, Writer, split_batch
+from fogd.serving.placement import ANY, Placement
 from fogd.serving.reader import Reader
 from fogd.serving.ring import RATE_KINDS, TEMP_KINDS, Ring
 from fogd.serving.sdnotify import Notifier
@@ -213,6 +214,7 @@ class Daemon:
         reload: Callable[[], Reload] | None = None,
         stats_path: str | None = None,
         info: dict | None = None,
+        placement: Placement | None = None,
     ) -> None:
         self.reader = reader
         self.writer = writer
@@ -239,6 +241,7 @@ class Daemon:
         self._reload = reload
         self.stats_path = stats_path
         self.info = info or {}  # static facts for the stats file (port, protocol, instance)
+        self.placement = placement or Placement(ANY)  # in-process users (tests, tools) keep their own threads' CPUs
         self.started_s = time.monotonic()
         self._reload_requested = threading.Event()
         self._counters_requested = threading.Event()
@@ -285,6 +288,7 @@ class Daemon:
         # What is loaded by now (modules, model, buffers) lives as long as the daemon: out of the collector's
         # sight, a full collection does not walk it (tens of ms, a latency spike) while frames flow.
         gc.freeze()
+        self.placement.start()  # before the threads start: they inherit this thread's CPU
         self.writer.start(self.formatter.header())
         self.reader.start()
         self.notifier.send("READY=1", f"STATUS={self.short_status()}")
@@ -309,6 +313,7 @@ class Daemon:
                     status_log.info("%s | counters %s", self.status_line(), json.dumps(self.counters_dict()))
                 self._handle_reload()
                 self._watch_threads()
+                self.placement.follow(now_s)
                 if pet_every_s is not None and now_s >= next_pet_s and self.healthy(now_s):
                     self.notifier.send("WATCHDOG=1")
                     next_pet_s = now_s + pet_every_s
@@ -650,6 +655,7 @@ class Daemon:
             "connected": bool(getattr(self.reader, "connected", True)),
             "model": {"name": self.model.name, "method": method(self.models)},
             "channels": {"compensated": list(self.plan.covered), "passed": list(self.plan.passed)},
+            "cpu": self.placement.describe(),
             "latest": asdict(self.latest),
             "latency_s": {"last": self.latency.last_s, "max_since_status": self.latency.max_s},
             "counters": self.counters_dict(),
