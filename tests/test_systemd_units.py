@@ -76,3 +76,40 @@ def test_udev_rule_names_starts_and_tunes_the_port():
     rule = (ROOT / "config" / "99-fog.rules").read_text()
     for needed in ('SYMLINK+="fog0"', 'TAG+="systemd"', 'ENV{SYSTEMD_WANTS}+="fogd@fog0.service"', 'ATTR{latency_timer}="1"'):
         assert needed in rule, needed
+
+
+def syscalls(name: str, seen: frozenset[str] = frozenset()) -> set[str]:
+    """The system calls a SystemCallFilter= entry names, groups expanded by systemd-analyze itself."""
+    if not name.startswith("@"):
+        return {name}
+    listing = subprocess.run(["systemd-analyze", "syscall-filter", name], capture_output=True, text=True, timeout=60,
+                             check=True).stdout  # fmt: skip
+    calls: set[str] = set()
+    for line in listing.splitlines()[1:]:
+        entry = line.strip()
+        if entry and not entry.startswith("#") and entry not in seen:
+            calls |= syscalls(entry, seen | {name})
+    return calls
+
+
+def allowed_syscalls(unit_text: str) -> set[str]:
+    """What a unit's SystemCallFilter= lines allow, as systemd combines them: the first line an allow list,
+    later lines adding their calls, or with ~ taking them away."""
+    allowed: set[str] = set()
+    for line in unit_text.splitlines():
+        if line.startswith("SystemCallFilter="):
+            value = line.split("=", 1)[1]
+            deny = value.startswith("~")
+            calls = set().union(*(syscalls(entry) for entry in value.lstrip("~").split()))
+            allowed = allowed - calls if deny else allowed | calls
+    return allowed
+
+
+@needs_analyze
+@pytest.mark.parametrize("name", UNITS)
+def test_the_filter_lets_fogd_keep_its_threads_on_a_cpu(name):
+    """`cpu: auto` (the default) calls sched_setaffinity at start: a unit that filtered it would have the kernel
+    kill fogd (SIGSYS) before it read a frame. The privileged and resource calls the unit takes away stay away."""
+    allowed = allowed_syscalls((ROOT / "config" / name).read_text())
+    assert {"sched_setaffinity", "sched_getaffinity", "read", "poll"} <= allowed
+    assert not {"setpriority", "sched_setscheduler", "setrlimit", "reboot", "init_module"} & allowed
