@@ -19,7 +19,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from fogd.errors import ConfigError
-from fogd.serving import config, placement
+from fogd.serving import config, placement, statsfile
 from fogd.serving.placement import ANY, AUTO, BUSY_SHARE, MARGIN, Placement, better_cpu, cpu_setting
 
 linux_only = pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="CPU affinity is Linux's")
@@ -240,12 +240,15 @@ def test_the_daemon_keeps_its_threads_on_one_cpu_unless_told_any(tmp_path, setti
     args = [] if setting is None else ["--cpu", str(max(allowed)) if setting == "last" else setting]
     pid, cpus, snapshot = run_daemon(tmp_path, model, *args)
     singles = {str(cpu) for cpu in allowed}
+    told = statsfile.describe(snapshot)
     if setting == ANY:
+        assert "threads on CPU" not in told
         assert snapshot["cpu"] == {"setting": ANY, "on": None, "moves": 0}
         assert len(cpus) >= 3 and not singles & set(cpus.values())  # no thread narrowed to one CPU
         return
     on = snapshot["cpu"]["on"]
     assert on in allowed
+    assert f"threads on CPU {on} (" in told  # fogd --status says where
     assert cpus[pid] == str(on)  # the loop (the main thread)
     kept = [tid for tid, cpu_list in cpus.items() if cpu_list == str(on)]
     assert len(kept) >= 3  # the loop, the reader and the writer

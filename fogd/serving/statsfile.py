@@ -111,10 +111,13 @@ def describe(snapshot: dict[str, Any]) -> str:
         )
     else:
         comp = f"comp {number(latest.get('comp_dph'), '+.4f')} deg/h"
+    cpu = snapshot.get("cpu") or {}
+    on = cpu.get("on") if isinstance(cpu, dict) else None
+    placed = f", threads on CPU {on} ({cpu.get('setting')}, moved {cpu.get('moves')} times)" if on is not None else ""
     return "\n".join(
         [
             f"fogd {snapshot.get('version', '?')} pid {snapshot.get('pid')} {state}, up {number(snapshot.get('uptime_s'), '.0f')} s, "
-            f"port {snapshot.get('port', '?')} {'connected' if snapshot.get('connected') else 'LOST (waiting for it)'}",
+            f"port {snapshot.get('port', '?')} {'connected' if snapshot.get('connected') else 'LOST (waiting for it)'}{placed}",
             f"model {model.get('name')} ({model.get('method')}); T {number(latest.get('temp_c'), '.2f')} C, "
             f"dT/dt {number(latest.get('temp_rate_cps'), '+.5f')} C/s, {comp}, "
             f"latency {number(1e3 * latency['last'] if isinstance(latency.get('last'), (int, float)) else None, '.1f')} ms",
