@@ -5,6 +5,7 @@ keeps its threads on one CPU by default, on the CPU it is given, or lets the ker
 from __future__ import annotations
 
 import argparse
+import contextlib
 import hashlib
 import json
 import os
@@ -153,45 +154,57 @@ def follow_for(kept: Placement, seconds: float, monkeypatch) -> None:
     kept.follow(time.monotonic())
 
 
-@two_cpus
-def test_threads_move_off_a_cpu_another_process_keeps_busy(monkeypatch):
+@contextlib.contextmanager
+def hog_process(cpu: int):
+    """Another process keeping `cpu` busy."""
+    hog = subprocess.Popen([sys.executable, "-c", f"import os\nos.sched_setaffinity(0, {{{cpu}}})\nwhile True: pass"])
+    try:
+        yield
+    finally:
+        hog.kill()
+        hog.wait()
+
+
+@contextlib.contextmanager
+def own_busy_thread(cpu: int):
+    """A busy thread of this process, started on the pinned thread: it inherits `cpu` (fogd's own load)."""
+    stop = threading.Event()
+    spinner = threading.Thread(target=spin_in_c, args=(stop,))
+    spinner.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        spinner.join()
+
+
+def followed_under(load, monkeypatch) -> tuple[int, int, int, set[int]]:
+    """A thread kept on a CPU by `auto`, with `load` on that CPU through two checks: (its first CPU, its CPU
+    now, moves, the thread's own affinity now)."""
+
     def body():
         kept = Placement(AUTO)
         kept.start()
         first = kept.cpu
-        hog = subprocess.Popen([sys.executable, "-c", f"import os\nos.sched_setaffinity(0, {{{first}}})\nwhile True: pass"])
-        try:
-            time.sleep(0.3)  # the hog is running
+        with load(first):
+            time.sleep(0.3)  # the load is running
             follow_for(kept, 1.5, monkeypatch)
-        finally:
-            hog.kill()
-            hog.wait()
         return first, kept.cpu, kept.moves, os.sched_getaffinity(0)
 
-    first, now, moves, own = in_thread(body)
+    return in_thread(body)
+
+
+@two_cpus
+def test_threads_move_off_a_cpu_another_process_keeps_busy(monkeypatch):
+    first, now, moves, own = followed_under(hog_process, monkeypatch)
     assert now != first and moves == 1
     assert own == {now}  # the thread itself was re-pinned, not only the record
 
 
 @two_cpus
 def test_the_daemons_own_load_does_not_make_it_move(monkeypatch):
-    def body():
-        kept = Placement(AUTO)
-        kept.start()
-        first = kept.cpu
-        stop = threading.Event()
-        spinner = threading.Thread(target=spin_in_c, args=(stop,))
-        spinner.start()  # inherits the CPU: fogd's own busy thread
-        try:
-            time.sleep(0.3)
-            follow_for(kept, 1.5, monkeypatch)
-        finally:
-            stop.set()
-            spinner.join()
-        return first, kept.cpu, kept.moves
-
-    first, now, moves = in_thread(body)
-    assert (now, moves) == (first, 0)
+    first, now, moves, own = followed_under(own_busy_thread, monkeypatch)
+    assert (now, moves, own) == (first, 0, {first})
 
 
 def thread_cpus(pid: int) -> dict[int, str]:
