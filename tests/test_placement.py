@@ -9,6 +9,7 @@ import contextlib
 import hashlib
 import json
 import os
+import re
 import subprocess
 import sys
 import threading
@@ -271,3 +272,32 @@ def test_the_daemon_keeps_its_threads_on_one_cpu_unless_told_any(tmp_path, setti
         assert snapshot["cpu"] == {"setting": max(allowed), "on": max(allowed), "moves": 0}
     else:
         assert snapshot["cpu"]["setting"] == AUTO
+
+
+@linux_only
+def test_a_refused_affinity_is_one_warning_and_the_kernel_places_the_threads(monkeypatch, caplog):
+    """A container or seccomp policy that refuses sched_setaffinity (EPERM) costs a log line, never the start."""
+
+    def refuse(pid, cpus):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setaffinity", refuse)
+    kept = Placement(AUTO)
+    with caplog.at_level("WARNING", logger="fogd.placement"):
+        kept.start()
+        kept.follow(time.monotonic() + 3600)
+    assert kept.cpu is None and kept.describe()["on"] is None
+    messages = [record.getMessage() for record in caplog.records]
+    assert len(messages) == 1
+    assert re.fullmatch(r"cannot keep fogd's threads on CPU \d+ \(Operation not permitted\); the kernel places them",
+                        messages[0])  # fmt: skip
+
+
+@linux_only
+def test_the_daemon_refuses_a_cpu_it_may_not_use_in_one_line(tmp_path):
+    outside = max(os.sched_getaffinity(0)) + 1
+    done = subprocess.run([sys.executable, "-m", "fogd.cli.daemon", "--port", str(tmp_path / "tty"), "--cpu", str(outside)],
+                          capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert done.returncode == 2
+    assert f"CPU {outside} is not one this process may run on" in done.stderr
+    assert "Traceback" not in done.stderr and len(done.stderr.strip().splitlines()) <= 3
