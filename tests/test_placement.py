@@ -301,3 +301,37 @@ def test_the_daemon_refuses_a_cpu_it_may_not_use_in_one_line(tmp_path):
     assert done.returncode == 2
     assert f"CPU {outside} is not one this process may run on" in done.stderr
     assert "Traceback" not in done.stderr and len(done.stderr.strip().splitlines()) <= 3
+
+
+@two_cpus
+def test_the_daemon_moves_off_a_cpu_another_process_takes(tmp_path):
+    """The daemon's loop looks every CHECK_EVERY_S: a process spinning on its CPU moves its threads, with one
+    warning that names both CPUs, and every thread goes along."""
+    from test_daemon_e2e import Pty, start_fogd
+    from test_hardening import model_document
+
+    from fogd.core import modelfile
+
+    model, stats = tmp_path / "model.json", tmp_path / "stats.json"
+    modelfile.save(model, model_document(name="e2e-linear"))
+    gyro = Pty()
+    fogd = start_fogd(tmp_path, gyro.path, model, "--stats-file", str(stats))
+    try:
+        deadline = time.monotonic() + 10
+        while not stats.exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        first = json.loads(stats.read_text())["cpu"]["on"]
+        with hog_process(first):
+            deadline = time.monotonic() + 4 * placement.CHECK_EVERY_S
+            while json.loads(stats.read_text())["cpu"]["moves"] == 0 and time.monotonic() < deadline:
+                time.sleep(0.2)
+            cpu = json.loads(stats.read_text())["cpu"]
+            cpus = thread_cpus(fogd.process.pid)
+        assert fogd.terminate()[0] == 0
+    finally:
+        fogd.kill()
+        gyro.close()
+    assert cpu["moves"] == 1 and cpu["on"] != first
+    assert cpus[fogd.process.pid] == str(cpu["on"]) and str(first) not in cpus.values()
+    assert f"CPU {first} busy: other processes took" in fogd.stderr
+    assert f"fogd's threads moved to CPU {cpu['on']}" in fogd.stderr
