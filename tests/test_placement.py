@@ -19,7 +19,10 @@ from pathlib import Path
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from test_daemon_e2e import SAMPLES, Pty, run_samples, start_fogd, wait_for_rows, wire_frames
+from test_hardening import model_document
 
+from fogd.core import modelfile
 from fogd.errors import ConfigError
 from fogd.serving import config, placement, statsfile
 from fogd.serving.placement import ANY, AUTO, BUSY_SHARE, MARGIN, Placement, better_cpu, cpu_setting
@@ -218,11 +221,25 @@ def thread_cpus(pid: int) -> dict[int, str]:
     return lists
 
 
+@pytest.fixture
+def model_path(tmp_path) -> Path:
+    """The end-to-end tests' linear model (test_daemon_e2e's)."""
+    path = tmp_path / "model.json"
+    modelfile.save(path, model_document(name="e2e-linear"))
+    return path
+
+
+def stats_when_written(stats: Path, timeout_s: float = 10.0) -> dict:
+    """The daemon's stats file, once it has written one."""
+    deadline = time.monotonic() + timeout_s
+    while not stats.exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return json.loads(stats.read_text())
+
+
 def run_daemon(tmp_path: Path, model: Path, *args: str) -> tuple[int, dict[int, str], dict]:
     """The real daemon on a pty with frames flowing: its pid, every thread's CPU list and the stats file's
     `cpu`."""
-    from test_daemon_e2e import SAMPLES, Pty, run_samples, start_fogd, wait_for_rows, wire_frames
-
     gyro, out, stats = Pty(), tmp_path / "out.csv", tmp_path / "stats.json"
     fogd = start_fogd(tmp_path, gyro.path, model, "--out", str(out), "--out-format", "csv", "--stats-file", str(stats),
                       *args)  # fmt: skip
@@ -230,10 +247,7 @@ def run_daemon(tmp_path: Path, model: Path, *args: str) -> tuple[int, dict[int, 
         gyro.write(b"".join(wire_frames("kvh-a", run_samples("kvh-a"))))
         wait_for_rows(out, SAMPLES + 1)
         cpus = thread_cpus(fogd.process.pid)
-        deadline = time.monotonic() + 10
-        while not stats.exists() and time.monotonic() < deadline:
-            time.sleep(0.05)
-        snapshot = json.loads(stats.read_text())
+        snapshot = stats_when_written(stats)
         assert fogd.terminate()[0] == 0
     finally:
         fogd.kill()
@@ -243,16 +257,10 @@ def run_daemon(tmp_path: Path, model: Path, *args: str) -> tuple[int, dict[int, 
 
 @two_cpus
 @pytest.mark.parametrize("setting", [None, "last", ANY])
-def test_the_daemon_keeps_its_threads_on_one_cpu_unless_told_any(tmp_path, setting):
-    from test_hardening import model_document
-
-    from fogd.core import modelfile
-
-    model = tmp_path / "model.json"
-    modelfile.save(model, model_document(name="e2e-linear"))
+def test_the_daemon_keeps_its_threads_on_one_cpu_unless_told_any(tmp_path, model_path, setting):
     allowed = os.sched_getaffinity(0)
     args = [] if setting is None else ["--cpu", str(max(allowed)) if setting == "last" else setting]
-    pid, cpus, snapshot = run_daemon(tmp_path, model, *args)
+    pid, cpus, snapshot = run_daemon(tmp_path, model_path, *args)
     singles = {str(cpu) for cpu in allowed}
     told = statsfile.describe(snapshot)
     if setting == ANY:
@@ -304,23 +312,13 @@ def test_the_daemon_refuses_a_cpu_it_may_not_use_in_one_line(tmp_path):
 
 
 @two_cpus
-def test_the_daemon_moves_off_a_cpu_another_process_takes(tmp_path):
+def test_the_daemon_moves_off_a_cpu_another_process_takes(tmp_path, model_path):
     """The daemon's loop looks every CHECK_EVERY_S: a process spinning on its CPU moves its threads, with one
     warning that names both CPUs, and every thread goes along."""
-    from test_daemon_e2e import Pty, start_fogd
-    from test_hardening import model_document
-
-    from fogd.core import modelfile
-
-    model, stats = tmp_path / "model.json", tmp_path / "stats.json"
-    modelfile.save(model, model_document(name="e2e-linear"))
-    gyro = Pty()
-    fogd = start_fogd(tmp_path, gyro.path, model, "--stats-file", str(stats))
+    stats, gyro = tmp_path / "stats.json", Pty()
+    fogd = start_fogd(tmp_path, gyro.path, model_path, "--stats-file", str(stats))
     try:
-        deadline = time.monotonic() + 10
-        while not stats.exists() and time.monotonic() < deadline:
-            time.sleep(0.05)
-        first = json.loads(stats.read_text())["cpu"]["on"]
+        first = stats_when_written(stats)["cpu"]["on"]
         with hog_process(first):
             deadline = time.monotonic() + 4 * placement.CHECK_EVERY_S
             while json.loads(stats.read_text())["cpu"]["moves"] == 0 and time.monotonic() < deadline:

@@ -122,8 +122,8 @@ class Placement:
         if target is not None:
             self.move(target, others, window_s)
 
-    def move(self, target: int, others_share: dict[int, float] | None = None, window_s: float = 0.0) -> None:
-        """Re-pin every thread kept on the current CPU to `target`."""
+    def move(self, target: int, others_share: dict[int, float], window_s: float) -> None:
+        """Re-pin every thread kept on the current CPU to `target`, and say why (`others_share` over `window_s`)."""
         old = self.cpu
         for tid in threads_on(old):
             try:
@@ -133,10 +133,8 @@ class Placement:
         self.cpu = target
         self.moves += 1
         self._last = None  # the next check starts a fresh window on the new CPU
-        if others_share is not None:
-            log.warning("CPU %s busy: other processes took %.0f %% of it over %.1f s; fogd's threads moved to "
-                        "CPU %d (%.0f %% busy)", old, 100 * others_share[old], window_s, target,
-                        100 * others_share[target])  # fmt: skip
+        log.warning("CPU %s busy: other processes took %.0f %% of it over %.1f s; fogd's threads moved to CPU %d "
+                    "(%.0f %% busy)", old, 100 * others_share[old], window_s, target, 100 * others_share[target])  # fmt: skip
 
     def describe(self) -> dict:
         """For the stats file: the setting, the CPU the threads are on (None: the kernel's choice), moves."""
