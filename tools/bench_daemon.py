@@ -642,13 +642,12 @@ def main(argv: list[str] | None = None) -> int:
     relay = results["relay"]
     per_frame = []
     for hz in CPU_RATES:
-        fogd_step, floor, bare = results["fogd"]["cpu"][hz], results[THREADS]["cpu"][hz], relay["cpu"][hz]
-        anywhere = results[ANY_CPU]["cpu"][hz]
+        fogd_step = results["fogd"]["cpu"][hz]
         us = 1e6 / (fogd_step.elapsed_s * hz)
         per_frame.append([f"{hz:,.0f}", f"{fogd_step.cpu_s * us:.0f}", f"{fogd_step.main_cpu_s * us:.0f}",
                           f"{(fogd_step.cpu_s - fogd_step.main_cpu_s) * us:.0f}",
-                          f"{anywhere.cpu_s * 1e6 / (anywhere.elapsed_s * hz):.0f}",
-                          f"{floor.cpu_s * 1e6 / (floor.elapsed_s * hz):.0f}", f"{bare.cpu_s * 1e6 / (bare.elapsed_s * hz):.0f}"])  # fmt: skip
+                          *(f"{step.cpu_s * 1e6 / (step.elapsed_s * hz):.0f}"
+                            for step in (results[ANY_CPU]["cpu"][hz], results[THREADS]["cpu"][hz], relay["cpu"][hz]))])  # fmt: skip
     print_table("3h. CPU per frame (us, the scheduler's count): fogd's loop thread (pop, compensate, encode, write) and "
                 "its reader and writer threads (poll, read, lex, CRC, push), beside fogd with --cpu any, two Python threads that only hand "
                 "each read over and the one-thread relay",
