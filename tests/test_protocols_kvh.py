@@ -202,6 +202,23 @@ def test_encode_decode_round_trip(rate_dph, valid, seq, temp_c, message, time_us
     assert frame.t_s == (pytest.approx(time_us / 1e6, abs=1e-9) if message == "B" else None)
 
 
+@pytest.mark.parametrize("position", range(6))
+@pytest.mark.parametrize("value", [math.nan, math.inf, -math.inf])
+def test_the_fast_path_marks_any_non_finite_value_as_decode_does(position, value):
+    """Every status bit set and one gyro or accelerometer NaN or infinite: the fast path's one-expression
+    finiteness check must send the frame the way decode does (that axis invalid), whichever of the six it is.
+    The property test below rarely draws a fully valid status with a non-finite value, so each is named here."""
+    floats = [1.5, -2.25, 3.0, 0.5, -0.125, 1.0]
+    floats[position] = value
+    body = b"\xfe\x81\xff\x55" + struct.pack(">3f3fBBh", *floats, 0xFF, 7, 25)
+    raw = body + struct.pack(">I", crc32_mpeg2(body))
+    frame, length = KVH.decode_fast(raw, 0)
+    assert length == 36
+    assert repr(frame) == repr(KVH.decode(raw))
+    valid = frame.axis_valid if position < 3 else frame.accel_valid
+    assert valid[position % 3] is False and sum(valid) == 2
+
+
 @given(
     floats=st.lists(st.floats(width=32), min_size=6, max_size=6),
     status=st.integers(0, 255),

@@ -60,6 +60,9 @@ class Lexer:
         self._keep_len = max(0, max(len(protocol.sync) for protocol in self.protocols) - 1)
         self._buf = b""
         self._last_seq: dict[tuple[str, str], int] = {}
+        # _scan's view of one protocol, looked up once here rather than on every read
+        self._single = self.protocols[0] if len(self.protocols) == 1 else None
+        self._fast = getattr(self._single, "decode_fast", None)
 
     @property
     def buffered(self) -> int:
@@ -113,11 +116,9 @@ class Lexer:
     def _scan(self, frames: list[Frame]) -> None:
         buf = self._buf
         end = len(buf)
-        counters = self.counters
-        single = self.protocols[0] if len(self.protocols) == 1 else None
+        counters, single, fast = self.counters, self._single, self._fast
         find = single.find if single is not None else None
         account, append = self._account, frames.append
-        fast = getattr(single, "decode_fast", None)
         pos = 0
         while True:
             if fast is not None and pos < end:  # the protocol's usual frame right here, checked and decoded at once

@@ -20,15 +20,14 @@ from collections import deque
 from fogd.protocols.base import Frame
 
 KIND_NAMES = ("imu", "rate", "temp", "other")  # how the reader counts frames in ('comp' frames are 'other')
-COUNTED_KINDS = frozenset(KIND_NAMES[:3])  # counted under their own kind; the rest under 'other'
+COUNT_NAMES = {kind: kind for kind in KIND_NAMES[:3]}  # counted under their own kind; the rest under 'other'
 RATE_KINDS = frozenset(("imu", "rate"))  # frames carrying a gyro rate the daemon compensates
 TEMP_KINDS = frozenset(("imu", "temp"))  # frames whose temperature the daemon holds
 
 
 def kind_name(frame: Frame) -> str:
     """The reader's count a frame goes in: fogd does not re-compensate its own output, so 'comp' is 'other'."""
-    kind = frame.kind
-    return kind if kind in COUNTED_KINDS else "other"
+    return COUNT_NAMES.get(frame.kind, "other")
 
 
 class Ring:
@@ -79,10 +78,14 @@ class Ring:
 
     def pop(self, max_count: int | None = None) -> tuple[list[Frame], list[float]]:
         """Remove up to `max_count` of the oldest frames, oldest first, with each one's receive time."""
-        frames: list[Frame] = []
-        times: list[float] = []
         limit = self.capacity if max_count is None else max_count
         taken, pending = self._taken, self._queue
+        if taken and len(taken) == 1 and len(taken[0][1]) <= limit and pending.empty():  # the usual pop: one read's
+            t_rx_s, batch = taken.popleft()  # frames, waited for, nothing behind them: handed on as they are
+            self._popped += len(batch)
+            return batch, [t_rx_s] * len(batch)
+        frames: list[Frame] = []
+        times: list[float] = []
         while len(frames) < limit:
             if taken:
                 t_rx_s, batch = taken.popleft()
