@@ -3,7 +3,11 @@ another as they come (no framing, no model), and with --threads the same copy sp
 the way fogd splits it (a reader thread polls and reads, hands each read over through a queue, the main thread
 writes): what the hand-over between two threads costs before any work is done.
 
-Usage: python tools/bench_relay.py [--threads] IN_TTY OUT_TTY  (stops on SIGTERM or when the input closes)
+With --hold-us N the one-thread relay holds each read N microseconds (spinning, the CPU kept busy as work
+would keep it) before writing it on: a bare relay that answers as late as a process doing N us of work.
+
+Usage: python tools/bench_relay.py [--threads | --hold-us N] IN_TTY OUT_TTY  (stops on SIGTERM or when the input
+closes)
 """
 
 from __future__ import annotations
@@ -14,6 +18,7 @@ import select
 import signal
 import sys
 import threading
+import time
 import tty
 
 
@@ -25,14 +30,20 @@ def write_all(sink: int, data: bytes) -> None:
 
 def main(argv: list[str]) -> int:
     threads = argv[:1] == ["--threads"]
-    source_path, sink_path = argv[1:] if threads else argv
+    hold_s = float(argv[1]) * 1e-6 if argv[:1] == ["--hold-us"] else 0.0
+    source_path, sink_path = argv[-2:]
     source = os.open(source_path, os.O_RDONLY | os.O_NOCTTY)
     sink = os.open(sink_path, os.O_WRONLY | os.O_NOCTTY)
     for fd in (source, sink):
         tty.setraw(fd)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
     if not threads:
+        clock = time.perf_counter
         while data := os.read(source, 65536):
+            if hold_s:
+                until = clock() + hold_s
+                while clock() < until:
+                    pass
             write_all(sink, data)
         return 0
     reads: queue.SimpleQueue[bytes] = queue.SimpleQueue()
