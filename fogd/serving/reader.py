@@ -35,7 +35,7 @@ import serial
 
 from fogd.errors import DeviceError
 from fogd.protocols.lexer import Lexer
-from fogd.serving.ring import COUNT_NAMES, KIND_NAMES, Ring
+from fogd.serving.ring import KIND_NAMES, Ring, kind_name
 
 log = logging.getLogger("fogd.reader")
 
@@ -156,9 +156,9 @@ class Reader:
             self._push(frames, t_rx_s)
 
     def _push(self, frames: list, t_rx_s: float) -> None:
-        frames_in, count_name = self.counters.frames_in, COUNT_NAMES.get
+        frames_in = self.counters.frames_in
         for frame in frames:
-            frames_in[count_name(frame.kind, "other")] += 1
+            frames_in[kind_name(frame)] += 1
         self.ring.push(frames, t_rx_s)
 
     def _lost(self, error: BaseException) -> None:

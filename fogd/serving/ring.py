@@ -80,7 +80,7 @@ class Ring:
         """Remove up to `max_count` of the oldest frames, oldest first, with each one's receive time."""
         limit = self.capacity if max_count is None else max_count
         taken, pending = self._taken, self._queue
-        if taken and len(taken) == 1 and len(taken[0][1]) <= limit and pending.empty():  # the usual pop: one read's
+        if len(taken) == 1 and len(taken[0][1]) <= limit and pending.empty():  # the usual pop: one read's
             t_rx_s, batch = taken.popleft()  # frames, waited for, nothing behind them: handed on as they are
             self._popped += len(batch)
             return batch, [t_rx_s] * len(batch)
