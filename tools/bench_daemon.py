@@ -14,8 +14,8 @@ where an idle vCPU halts and waking it is now and then slow, apart from any work
 12's for six channels: (i) throughput and latency within 1.5x of the one-channel figures of the same run.
 All eight run at once and take turns: latency and CPU are measured in five turns of a fifth of the time each,
 every process in each turn (the order rotated), so a burst of the host's noise falls on all of them alike
-rather than on whichever was being measured (one after the other, the relay's own p99 moved 125-316 us
-between consecutive runs). Each turn begins with 0.2 s at its rate, unmeasured, so what is measured is the
+rather than on whichever was being measured (one after the other, the relay's own p99 was 109-186 us
+across four runs on 2026-11-27 morning). Each turn begins with 0.2 s at its rate, unmeasured, so what is measured is the
 steady state the process reaches, not its first frames after waiting out the others' turns. The throughput
 ladder then runs process by process.
   (a) throughput: the rate steps up (5k .. 120k frames/s, a few seconds each); loss = frames written - frames
@@ -443,7 +443,7 @@ def measure(commands: dict, rates: list[float], step_s: float, latency_s: float,
             turns: int = TURNS) -> dict[str, dict]:
     """Every process of `commands` (label: command) at once. Latency and CPU are measured in `turns` turns,
     the processes taking turns (the order rotated every turn): on this VM the host's noise comes in bursts
-    (the relay's own p99 at 1,000/s moved between 125 and 316 us from one 5-s run to the next), and turns spread
+    (measured one after the other, the relay's own p99 at 1,000/s was 109-186 us across four runs), and turns spread
     a burst over every process instead of landing on whichever one was measured just then. The throughput
     ladder then runs process by process; the others wait, idle."""
     harnesses: dict[str, Harness] = {}
