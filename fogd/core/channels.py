@@ -218,6 +218,7 @@ class _Stack:
         own = (flags[:, None] | np.where(clamped, _CLAMPED, 0) | np.where(outside, _OUT_OF_DOMAIN, 0)
                | np.where(rate_ok, 0, _RATE_INVALID)).astype(np.uint16)  # fmt: skip
         rate_comp_dph = np.where(rate_ok, rate_dph - comps, rate_dph)
+        comps = np.where(rate_ok, comps, 0.0)  # what was subtracted: nothing where the rate is invalid
         own, comps, rate_comp_dph = own.T.copy(), comps.T.copy(), rate_comp_dph.T.copy()
         return [Compensated(temp_used.copy(), temp_rate_cps.copy(), comps[index], rate_comp_dph[index], own[index])
                 for index in range(count)]
@@ -275,6 +276,7 @@ class _Stack:
                 else:
                     own |= _RATE_INVALID
                     rates_out[index].append(rate)
+                    comp = 0.0  # what was subtracted
                 comps_out[index].append(comp)
                 flags_out[index].append(own)
         self._held(held)
@@ -492,6 +494,7 @@ class ChannelCompensator:
                     else:
                         own |= _RATE_INVALID
                         outs[channel] = value
+                        comp = 0.0  # what was subtracted
                     comps[channel] = comp
                     flags_out[channel] = own
             if group.first:

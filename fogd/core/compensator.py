@@ -16,7 +16,8 @@ Policies (documented in the README):
   flagged TEMP_INVALID; before the first valid temperature nothing is fed to the estimator and the
   compensation is 0.
 - Invalid rate (NaN, Inf, or the caller's `rate_valid` false): flagged RATE_INVALID; the estimator still
-  advances, the compensated rate is the input passed through unchanged.
+  advances, the compensated rate is the input passed through unchanged and the compensation is 0 (what
+  was subtracted).
 - Calibrated domain: inputs are clamped to the training range and the sample flagged CLAMPED.
 - Guarded domain (models with a `domain_guard`, fogd.core.domain): a sample beyond the calibrated range by
   more than the guard's margin ("range", lag-bank models), or far from every calibration block in the scaled
@@ -146,6 +147,7 @@ class Compensator:
         if temp_stale is not None:
             flags[np.asarray(temp_stale, dtype=bool)] |= int(Flag.TEMP_STALE)
         rate_comp_dph = np.where(rate_ok, rate_dph - comp_dph, rate_dph)
+        comp_dph[~rate_ok] = 0.0  # what was subtracted: nothing
         return Compensated(temp_used, temp_rate_cps, comp_dph, rate_comp_dph, flags)
 
     def process_few(
@@ -194,7 +196,7 @@ class Compensator:
             flags |= _WARMUP
         if rate_ok and math.isfinite(rate):
             return held, temp_rate, comp, rate - comp, flags
-        return held, temp_rate, comp, rate, flags | _RATE_INVALID
+        return held, temp_rate, 0.0, rate, flags | _RATE_INVALID  # nothing subtracted: comp 0
 
     def _hold(self, temp_c: np.ndarray, valid: np.ndarray) -> np.ndarray:
         held = hold_temperature(temp_c, valid, self._held_temp_c)
