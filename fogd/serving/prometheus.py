@@ -14,6 +14,7 @@ from __future__ import annotations
 import logging
 import math
 import socket
+import sys
 import threading
 import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -69,6 +70,18 @@ def render(snapshot: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def render_server(client_errors: int, evicted: int) -> str:
+    """The endpoint's own counters."""
+    return (
+        "# HELP fogd_metrics_client_errors_total Metrics connections that failed (reset by the client, broken pipe).\n"
+        "# TYPE fogd_metrics_client_errors_total counter\n"
+        f"fogd_metrics_client_errors_total {float(client_errors)!r}\n"
+        "# HELP fogd_metrics_evicted_total Idle metrics connections closed to make room for a new one.\n"
+        "# TYPE fogd_metrics_evicted_total counter\n"
+        f"fogd_metrics_evicted_total {float(evicted)!r}\n"
+    )
+
+
 class _Server(ThreadingHTTPServer):
     daemon_threads = True
     block_on_close = False
@@ -79,7 +92,18 @@ class _Server(ThreadingHTTPServer):
         self._lock = threading.Lock()
         self._open: dict[Any, float] = {}  # connection -> when it was accepted
         self.evicted = 0
+        self.client_errors = 0  # connections that failed under a handler (a reset, a broken pipe): counted only
         super().__init__(*args, **kwargs)
+
+    def handle_error(self, request: Any, client_address: Any) -> None:
+        """A client that resets its connection (or any failure under a handler) costs a count and, the first
+        time, one debug line: never socketserver's traceback on stderr, the journal (a remote client could
+        fill it)."""
+        self.client_errors += 1
+        if self.client_errors == 1:
+            error = sys.exc_info()[1]
+            log.debug("metrics: a client connection failed (%s); such failures are counted, not logged",
+                      type(error).__name__ if error is not None else "unknown")  # fmt: skip
 
     def process_request(self, request: Any, client_address: Any) -> None:
         if not self._slots.acquire(blocking=False):
@@ -128,7 +152,8 @@ def serve(snapshot: Callable[[], dict[str, Any]], address: str, port: int) -> Th
             if self.path.split("?")[0] != "/metrics":
                 self.send_error(404, "only /metrics here")
                 return
-            body = render(snapshot()).encode()
+            server = self.server
+            body = (render(snapshot()) + render_server(server.client_errors, server.evicted)).encode()
             self.send_response(200)
             self.send_header("Content-Type", "text/plain; version=0.0.4; charset=utf-8")
             self.send_header("Content-Length", str(len(body)))
