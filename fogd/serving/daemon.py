@@ -248,6 +248,7 @@ class Daemon:
         self._reload_thread: threading.Thread | None = None
         self._reload_ready: Reload | None = None
         self._stall_logged = False
+        self._output_logged = False
         self._encode_error_logged = False
         self._reload_started_s = 0.0
         self.history: deque[tuple[float, ...]] = deque(maxlen=HISTORY_POINTS)
@@ -304,6 +305,9 @@ class Daemon:
                 next_duties_s = now_s + DUTIES_S
                 if self.duration_s is not None and now_s - started_s >= self.duration_s:
                     break
+                if self.writer.consumer_gone:  # stdout's reader closed the pipe: end as a Unix filter does
+                    log.warning("output %s closed by its reader (broken pipe); stopping", self.writer.sink.name)
+                    break
                 if now_s >= next_status_s:
                     status_log.info(self.status_line())
                     self.latency.max_s = 0.0
@@ -348,6 +352,17 @@ class Daemon:
                 self._stall_logged = True
             return False
         self._stall_logged = False
+        # an output that has taken nothing for longer than the watchdog's own interval (twice the ping's): a
+        # daemon alive but useless, for systemd to restart
+        watchdog_s = 2.0 * (self.notifier.watchdog_interval_s or math.inf)
+        failing_s = self.writer.failing_s(now_s)
+        if failing_s > watchdog_s:
+            if not self._output_logged:
+                log.error("output %s has taken nothing for %.1f s; no watchdog ping (systemd will restart fogd)",
+                          self.writer.sink.name, failing_s)  # fmt: skip
+                self._output_logged = True
+            return False
+        self._output_logged = False
         return self.reader.alive and self.writer.alive
 
     def _handle_reload(self) -> None:
@@ -609,7 +624,7 @@ class Daemon:
         )
         dropped_out = (
             writer.frames_dropped_full + writer.frames_dropped_timeout + writer.frames_dropped_error
-            + writer.frames_dropped_exit + writer.frames_cut
+            + writer.frames_dropped_exit + writer.frames_cut + writer.frames_dropped_no_reader
         )
         return (
             f"in {frames_in or 0} | out {writer.frames_written} dropped {dropped_out} | drops {drops or 'none'} | "
@@ -683,6 +698,7 @@ class Daemon:
         settled = (
             writer.frames_written + writer.frames_dropped_full + writer.frames_dropped_timeout
             + writer.frames_dropped_error + writer.frames_dropped_exit + writer.frames_cut
+            + writer.frames_dropped_no_reader
         )  # fmt: skip
         dropped = {
             "ring_overrun": self.ring.overruns,
@@ -692,6 +708,7 @@ class Daemon:
             "output_error": writer.frames_dropped_error,
             "output_at_exit": writer.frames_dropped_exit,
             "output_cut": writer.frames_cut,
+            "output_no_reader": writer.frames_dropped_no_reader,
         }
         pending = {
             "ring": len(self.ring),
