@@ -153,3 +153,51 @@ def test_a_reader_reconnecting_to_a_pty_output_gets_no_stale_frames(tmp_path, gy
     counters = fogd.counters()
     assert counters["writer"]["frames_dropped_no_reader"] >= 900
     assert counters["balance"]["adds_up"], counters["balance"]
+
+
+def test_the_watchdog_is_not_fed_while_the_output_takes_nothing(tmp_path, gyro, model_path):  # noqa: F811
+    """The output gone for longer than the watchdog's interval: the daemon is alive but useless, so the ping
+    stops and systemd restarts it (it used to be fed all along). Time is injected into `healthy`."""
+    from fogd.core import modelfile
+    from fogd.protocols.lexer import Lexer
+    from fogd.serving.daemon import Daemon
+    from fogd.serving.outputs import Chunk, Formatter, Writer, open_sink
+    from fogd.serving.reader import Reader
+    from fogd.serving.ring import Ring
+    from fogd.serving.sdnotify import Notifier
+    from fogd.serving.serialio import PortOpener, open_port
+
+    link, consumer = tmp_path / "out-link", Pty()
+    relink(link, consumer.path)
+    daemon = Daemon(reader=Reader(PortOpener(gyro.path, 921600), Lexer(KVH), Ring(1024), port=open_port(gyro.path, 921600)),
+                    writer=Writer(open_sink(str(link), 921600)), formatter=Formatter("csv", KVH, 2),
+                    model=modelfile.load(model_path), rate_hz=1000.0, axis=2, temp_stale_s=2.0, status_interval_s=60.0,
+                    notifier=Notifier({"WATCHDOG_USEC": "1000000"}))  # fmt: skip
+    daemon.writer.start()
+    daemon.reader.start()
+    replugged = None
+    try:
+        daemon.writer.submit(Chunk(b"row\n", [4]))
+        assert read_lines(consumer.master, 1) == [b"row"]
+        consumer.close()
+        deadline = time.monotonic() + WAIT_S
+        while daemon.writer.counters.frames_dropped_error == 0:  # writes fail from now on
+            assert time.monotonic() < deadline
+            daemon.writer.submit(Chunk(b"row\n", [4]))
+            time.sleep(0.02)
+        now_s = time.monotonic()
+        assert daemon.healthy(now_s)  # within WatchdogSec (1 s): still fed, the output may come back
+        assert not daemon.healthy(now_s + 1.5)  # (a reader is stuck only after READER_STALL_S, 2 s)
+        replugged = Pty()
+        relink(link, replugged.path)
+        while daemon.writer.counters.reopens == 0:
+            assert time.monotonic() < deadline
+            daemon.writer.submit(Chunk(b"row\n", [4]))
+            time.sleep(0.02)
+        read_lines(replugged.master, 1)
+        assert daemon.healthy(time.monotonic() + 1.5)
+    finally:
+        daemon.reader.stop()
+        daemon.writer.close(1.0)
+        if replugged is not None:
+            replugged.close()
