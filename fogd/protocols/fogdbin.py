@@ -78,6 +78,7 @@ class FogdProtocol(Protocol):
     sync = SYNC
     max_frame_len = 255
     seq_modulus = SEQ_MODULUS
+    repeats_are_copies = True
     accel_axes = (True, True, True)  # in IMU frames (type 04)
 
     def __init__(self, comp_axes: Sequence[int] = (0, 1, 2), comp_accel_axes: Sequence[int] = (0, 1, 2)) -> None:

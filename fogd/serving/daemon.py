@@ -40,7 +40,7 @@ from fogd.core.flags import Flag, describe
 from fogd.core.frozen import FrozenModel
 from fogd.core.modelfile import check_rate, printable
 from fogd.errors import ConfigError, FogdError
-from fogd.protocols.base import Frame
+from fogd.protocols.base import TIME_BACKWARDS, Frame
 from fogd.serving.channels import ChannelPlan, as_models, method, plan
 from fogd.serving.outputs import Chunk, Formatter, OutputBatch, Writer, split_batch
 from fogd.serving.placement import ANY, Placement
@@ -71,6 +71,7 @@ READER_STALL_S = 2.0  # a reader that has not come round its loop for this long 
 HISTORY_FIELDS = ("uptime_s", "temp_c", "temp_rate_cps", "comp_dph", "flags")
 NOT_DROPS = ("frames_ok", "other_frames", "frame_bytes", "seq_resets")  # lexer counters that count no loss
 _OUT_OF_DOMAIN, _CLAMPED = int(Flag.OUT_OF_DOMAIN), int(Flag.CLAMPED)
+_TIME_BACKWARDS = int(Flag.TIME_BACKWARDS)
 
 
 @dataclass
@@ -563,6 +564,10 @@ class Daemon:
                 self.latency.max_s = latency_s
         if rows:
             self._newest = (readings, comp, comps)  # made into `latest` only when someone reads it
+            for j, row in enumerate(rows):
+                if frames[row].flags & TIME_BACKWARDS:  # the lexer's mark, in the sample's own flags
+                    for one in (comps.values() if comps else (comp,)):
+                        one.flags[j] |= _TIME_BACKWARDS
         times = self.clock.times(device_s)
         t_s = times if len(frames) <= SCALAR_CHUNK else np.array(times, dtype=np.float64)
         return OutputBatch(frames, rows, t_s, comp, None if self.plan.single else comps)
