@@ -314,7 +314,8 @@ def serve(settings: dict[str, Any], protocol: protocols.Protocol, model, *, on_d
         notifier=Notifier(),
         reload=reloader(sources, settings) if sources is not None else None,
         stats_path=stats_path,
-        info={"instance": instance, "port": path, "protocol": protocol.name, "out": settings["out"]},
+        info={"instance": instance, "port": path, "protocol": protocol.name, "out": settings["out"],
+              "rate_source": rate_source(settings, sources)},
         placement=Placement(settings["cpu"]),
     )
     if settings["metrics_port"] is not None:
@@ -340,11 +341,32 @@ def serve(settings: dict[str, Any], protocol: protocols.Protocol, model, *, on_d
         settings["out"], settings["out_format"], f", stats {stats_path}" if stats_path else "",
     )  # fmt: skip
     log.info("model %s %s", model.name, channels.describe())
+    say_rate(protocol.name, settings["rate_hz"], rate_source(settings, sources))
     if on_daemon is not None:
         on_daemon(daemon)
     daemon.run()
     logging.getLogger("fogd.status").info("counters %s", json.dumps(daemon.counters_dict()))
     return 0
+
+
+def rate_source(settings: dict[str, Any], sources: Settings | None) -> str:
+    """Where rate_hz came from: the unit's own ?DR reply, the config (file or command line) or the default."""
+    if settings.get("query_settings"):
+        return "the unit's own ?DR reply"
+    if sources is None or sources.given("rate_hz"):
+        return "the config"
+    return "the default"
+
+
+def say_rate(protocol: str, rate_hz: float, source: str) -> None:
+    """At start: which rate the estimator assumes and why (frames without time cannot be measured)."""
+    if protocol == "kvh-a" and source == "the default":
+        log.warning("kvh-a frames carry no time: assuming %g Hz, the default rate_hz; set rate_hz to the unit's "
+                    "data rate (or query_settings: true to read it from the unit)", rate_hz)  # fmt: skip
+    elif protocol == "kvh-a":
+        log.info("kvh-a frames carry no time: %g Hz from %s", rate_hz, source)
+    else:
+        log.info("rate: %g Hz (%s) until measured from the frames' own time (frames without one keep it)", rate_hz, source)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

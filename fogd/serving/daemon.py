@@ -42,6 +42,8 @@ from fogd.core.modelfile import check_rate, printable
 from fogd.errors import ConfigError, FogdError
 from fogd.protocols.base import TIME_BACKWARDS, Frame
 from fogd.serving.channels import ChannelPlan, as_models, method, plan
+from fogd.serving.clock import DeviceRate
+from fogd.serving.missing import MissingChannels
 from fogd.serving.outputs import Chunk, Formatter, OutputBatch, Writer, split_batch
 from fogd.serving.placement import ANY, Placement
 from fogd.serving.reader import Reader
@@ -162,6 +164,7 @@ class LoopCounters:
     reloads_stuck: int = 0  # a reload that did not finish within RELOAD_TIMEOUT_S (abandoned, later ones run)
     records_popped: int = 0  # ring records compensated and encoded (or counted unencodable)
     frames_unencodable: int = 0  # frames whose values no output encoding could carry (or the model failed on)
+    samples_missing_channel: int = 0  # rate samples lacking a channel the model compensates (passed through)
 
 
 @dataclass(frozen=True)
@@ -253,6 +256,8 @@ class Daemon:
         self._encode_error_logged = False
         self._reload_started_s = 0.0
         self.history: deque[tuple[float, ...]] = deque(maxlen=HISTORY_POINTS)
+        self.rate = DeviceRate(rate_hz, self.info.get("rate_source", "the config"))
+        self.channels_seen = MissingChannels(self.plan)
 
     def _compensator(self, models: ChannelModels, rate_hz: float) -> ChannelCompensator:
         """The one compensator of every covered channel, as fogd-replay builds it; each model's window is
@@ -317,6 +322,8 @@ class Daemon:
                     self._counters_requested.clear()
                     status_log.info("%s | counters %s", self.status_line(), json.dumps(self.counters_dict()))
                 self._handle_reload()
+                self._follow_rate(now_s)
+                self.channels_seen.check(now_s)
                 self._watch_threads()
                 self.placement.follow(now_s)
                 if pet_every_s is not None and now_s >= next_pet_s and self.healthy(now_s):
@@ -365,6 +372,22 @@ class Daemon:
             return False
         self._output_logged = False
         return self.reader.alive and self.writer.alive
+
+    def _follow_rate(self, now_s: float) -> None:
+        """Use the rate the frames' own clock says once it has disagreed with the one in use (clock.py)."""
+        rate_hz = self.rate.check(now_s)
+        if rate_hz is None:
+            return
+        try:
+            compensator = self._compensator(self.models, rate_hz)
+        except (ValueError, FogdError) as error:  # a window the measured rate cannot hold
+            log.error("rate: cannot run the model at %g Hz (%s); keeping %g Hz", rate_hz, printable(str(error)),
+                      self.rate_hz)  # fmt: skip
+            self.rate.keep()
+            return
+        self._drain()  # what arrived so far at the old rate
+        self.compensator, self.rate_hz = compensator, rate_hz
+        self.rate.use(rate_hz)
 
     def _handle_reload(self) -> None:
         """Start preparing a requested reload on a helper thread; swap in a prepared one (between batches)."""
@@ -564,6 +587,11 @@ class Daemon:
                 self.latency.max_s = latency_s
         if rows:
             self._newest = (readings, comp, comps)  # made into `latest` only when someone reads it
+            if device_s[0] is not None:
+                self.rate.add(device_s)
+            lacking = self.channels_seen.add(frames, rows, t_rx_s[0])
+            if lacking:
+                self.counters.samples_missing_channel += lacking
             for j, row in enumerate(rows):
                 if frames[row].flags & TIME_BACKWARDS:  # the lexer's mark, in the sample's own flags
                     for one in (comps.values() if comps else (comp,)):
@@ -635,10 +663,18 @@ class Daemon:
             f"in {frames_in or 0} | out {writer.frames_written} dropped {dropped_out} | drops {drops or 'none'} | "
             f"ring overruns {self.ring.overruns} | reconnects {reader.reconnects}"
             f"{f' (about {reader.disconnected_s * self.rate_hz:.0f} frames lost unplugged)' if reader.disconnects else ''} | "
+            f"rate {self.rate.describe()} | {self._missing_text()}"
             f"latency {1e3 * self.latency.last_s:.1f} ms (max {1e3 * self.latency.max_s:.1f}) | "
             f"T {latest.temp_c:.2f} C dT/dt {latest.temp_rate_cps:+.5f} C/s {self._comp_text()} | "
             f"{_shares_text(self.domain_shares())} | model {printable(self.model.name)} | fogd {__version__}"
         )
+
+    def _missing_text(self) -> str:
+        """'MISSING rate_x_dph (1234 samples) | ' for compensated channels the frames never carried, else ''."""
+        missing = self.channels_seen.missing
+        if not missing:
+            return ""
+        return f"MISSING {', '.join(missing)} ({self.counters.samples_missing_channel} samples) | "
 
     def _comp_text(self) -> str:
         """'comp +0.0123 deg/h (flags)', or with a multi-channel model each channel's, and those passed through."""
@@ -674,7 +710,9 @@ class Daemon:
             "uptime_s": now_s - self.started_s,
             "connected": bool(getattr(self.reader, "connected", True)),
             "model": {"name": self.model.name, "method": method(self.models)},
-            "channels": {"compensated": list(self.plan.covered), "passed": list(self.plan.passed)},
+            "channels": {"compensated": list(self.plan.covered), "passed": list(self.plan.passed),
+                         "missing": self.channels_seen.missing},
+            "rate": self.rate.as_dict(),
             "cpu": self.placement.describe(),
             "latest": asdict(self.latest),
             "latency_s": {"last": self.latency.last_s, "max_since_status": self.latency.max_s},
