@@ -181,7 +181,7 @@ def render(snapshot: dict[str, Any], path: str, *, width: int = 60, bars: str = 
         f"now      T {_number(latest.get('temp_c'), '.2f', 'C')}  dT/dt {_number(latest.get('temp_rate_cps'), '+.5f', 'C/s')}  "
         f"{comp_now}",
     ]
-    missing = (snapshot.get("channels") or {}).get("missing") or []
+    missing = snapshot.get("missing_channels") or []
     if missing:
         lines.append(f"MISSING  {', '.join(missing)}: the frames carry none ({loop.get('samples_missing_channel', 0)} "
                      "samples passed through uncompensated)")  # fmt: skip

@@ -710,8 +710,8 @@ class Daemon:
             "uptime_s": now_s - self.started_s,
             "connected": bool(getattr(self.reader, "connected", True)),
             "model": {"name": self.model.name, "method": method(self.models)},
-            "channels": {"compensated": list(self.plan.covered), "passed": list(self.plan.passed),
-                         "missing": self.channels_seen.missing},
+            "channels": {"compensated": list(self.plan.covered), "passed": list(self.plan.passed)},
+            "missing_channels": self.channels_seen.missing,  # compensated, but no frame has carried them
             "rate": self.rate.as_dict(),
             "cpu": self.placement.describe(),
             "latest": asdict(self.latest),
