@@ -131,3 +131,20 @@ def test_a_repeated_frame_goes_out_once_and_a_clock_that_went_back_is_flagged(tm
     assert flagged == [60]
     lexer = json.loads(fogd.stderr.split("fogd.status: counters ", 1)[1].splitlines()[0])["lexer"]
     assert (lexer["frames_repeated"], lexer["time_backwards"]) == (1, 1)
+
+
+def test_kvh_a_says_which_rate_it_assumes_and_where_it_came_from(tmp_path, gyro, model_path):  # noqa: F811
+    """Issue 36 item 5: leaving out --rate-hz with kvh-a silently assumed 1000 Hz."""
+    said = {}
+    for given in ([], ["--rate-hz", "500"]):
+        fogd = Fogd(tmp_path, "--port", gyro.path, "--model", str(model_path), "--protocol", "kvh-a", *given)
+        try:
+            fogd.wait_for("fogd.daemon: reading")
+            fogd.wait_for("kvh-a frames carry no time")
+            assert stop(fogd.process, lambda: fogd.stderr) == 0
+        finally:
+            fogd.kill()
+        said[bool(given)] = [line for line in fogd.stderr.splitlines() if "carry no time" in line]
+    assert said[False] == ["fogd.daemon: kvh-a frames carry no time: assuming 1000 Hz, the default rate_hz; set "
+                           "rate_hz to the unit's data rate (or query_settings: true to read it from the unit)"]
+    assert said[True] == ["fogd.daemon: kvh-a frames carry no time: 500 Hz from the config"]

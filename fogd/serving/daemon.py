@@ -13,7 +13,9 @@ flags (`stop`, `request_reload`, `request_counters`); a reload is prepared (conf
 helper thread and swapped in between two batches, so no frame is lost or compensated twice. The estimator
 state survives a swap when the new model has the same inputs (same estimator settings), else it restarts
 with a warm-up (logged). systemd is told READY=1, a STATUS= summary, and WATCHDOG=1 only while the reader
-thread is alive and coming round its loop: a hung reader stops the pings and systemd restarts fogd.
+thread is alive and coming round its loop and the output takes frames: a hung reader, or an output whose
+every write has failed for longer than WatchdogSec, stops the pings and systemd restarts fogd. stdout's
+reader closing the pipe (EPIPE) ends the run, exit 0, as it ends any Unix filter.
 """
 
 from __future__ import annotations

@@ -9,6 +9,12 @@ does. When the writer thread is idle (nothing queued or being written) and the s
 loop writes the chunk itself with one non-blocking write, and queues only what the consumer did not take at
 once: output order is kept, nothing waits, and a frame reaches the consumer without a wake-up of the writer
 thread (most of the daemon's latency at real rates).
+
+An output that goes away (a serial port unplugged, a consumer's pty re-created behind its link, a FIFO's
+reader gone) is closed and opened again by path with a back-off, as the input port is; meanwhile its frames
+are dropped and counted. A pty fogd makes (`pty:PATH`) is written only while a reader holds it open: frames
+for nobody are dropped and counted, never queued in the kernel for a reader that comes later, who gets the
+CSV header (if any) and then live frames.
 """
 
 from __future__ import annotations
