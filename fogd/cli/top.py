@@ -150,7 +150,8 @@ def render(snapshot: dict[str, Any], path: str, *, width: int = 60, bars: str = 
     shares = snapshot.get("domain_shares") or {}
     history = snapshot.get("history") or {}
     frames_in = " ".join(f"{kind} {count}" for kind, count in (reader.get("frames_in") or {}).items() if count) or "0"
-    dropped_out = sum(writer.get(key, 0) for key in ("frames_dropped_full", "frames_dropped_timeout", "frames_dropped_error"))
+    dropped_out = sum(writer.get(key, 0) for key in ("frames_dropped_full", "frames_dropped_timeout", "frames_dropped_error",
+                                                     "frames_dropped_no_reader"))  # fmt: skip
     lexer_text = "  ".join(f"{name.replace('_', ' ')} {lexer.get(name, 0)}" for name in LEXER_SHOWN)
 
     def ms(value: Any) -> str:

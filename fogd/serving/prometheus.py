@@ -60,6 +60,13 @@ def render(snapshot: dict[str, Any]) -> str:
     metric("fogd_samples_flagged_share", "gauge", "Share of the rate samples compensated since start with that flag.",
            [(f'{{flag="{name}"}}', shares[name]) for name in ("out_of_domain", "clamped")])
     metric("fogd_reloads_total", "counter", "Reloads applied (SIGHUP).", [("", loop["reloads"])])
+    if "samples_missing_channel" in loop:
+        metric("fogd_samples_missing_channel_total", "counter",
+               "Rate samples lacking a channel the model compensates (passed through uncompensated).",
+               [("", loop["samples_missing_channel"])])  # fmt: skip
+    if isinstance(snapshot.get("rate"), dict):
+        metric("fogd_rate_hz", "gauge", "Sample rate the estimator uses, Hz (the frames' own clock where they carry time).",
+               [("", snapshot["rate"].get("in_use_hz"))])  # fmt: skip
     metric("fogd_connected", "gauge", "1 while the port is open.", [("", int(bool(snapshot["connected"])))])
     latest = snapshot["latest"]
     for key, help_text in (("temp_c", "Temperature used, C."), ("temp_rate_cps", "Temperature rate, C/s."),
