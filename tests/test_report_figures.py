@@ -121,8 +121,9 @@ def test_the_runs_have_offsets_the_fit_removes(trained: dict[str, Trained]) -> N
 
 
 @pytest.mark.parametrize("method", ["pso-svr", "linear", "paper linear", "temp only"])
-def test_error_against_temperature_draws_each_model_along_each_run(drawn: tuple[dict, str],
-                                                                   trained: dict[str, Trained], method: str) -> None:  # fmt: skip
+def test_error_against_temperature_draws_each_model_along_each_run(
+    drawn: tuple[dict, str], trained: dict[str, Trained], method: str
+) -> None:
     """For every model, one line per training run: the run's block temperatures and the model's prediction on
     that run's own inputs (not a curve over temperature with the other inputs frozen, which for a lag bank
     leaves the data's range many times over)."""
@@ -133,15 +134,17 @@ def test_error_against_temperature_draws_each_model_along_each_run(drawn: tuple[
     for name, rows in _run_rows(t):
         temp_c = t.data.x[rows, 0]  # every input set here starts with the temperature
         predicted = t.model.predict(t.data.x[rows])[0]
-        assert any(x.shape == temp_c.shape and np.allclose(x, temp_c) and np.allclose(y, predicted) for x, y in lines), name
+        drawn_here = [x.shape == temp_c.shape and np.allclose(x, temp_c) and np.allclose(y, predicted) for x, y in lines]
+        assert any(drawn_here), name
     for x, y in lines:  # no line leaves the measured errors' range by more than a tenth of it
         margin = 0.1 * np.ptp(measured)
         assert measured.min() - margin <= y.min() and y.max() <= measured.max() + margin
 
 
 @pytest.mark.parametrize("method", ["pso-svr", "temp only"])
-def test_error_against_temperature_colours_blocks_by_the_temperature_rate(drawn: tuple[dict, str],
-                                                                          trained: dict[str, Trained], method: str) -> None:  # fmt: skip
+def test_error_against_temperature_colours_blocks_by_the_temperature_rate(
+    drawn: tuple[dict, str], trained: dict[str, Trained], method: str
+) -> None:
     """The dots are the block errors with each run's offset taken off, against the block temperature, their
     colour the temperature rate (here known in closed form: within 10 % of its range of the block
     temperatures' slope, which is all 60 s blocks can tell)."""
@@ -161,7 +164,9 @@ def test_error_against_temperature_colours_blocks_by_the_temperature_rate(drawn:
 
 
 @pytest.mark.parametrize("method", ["pso-svr", "linear"])
-def test_fit_figure_takes_each_runs_offset_off(drawn: tuple[dict, str], trained: dict[str, Trained], method: str) -> None:
+def test_fit_figure_takes_each_runs_offset_off(
+    drawn: tuple[dict, str], trained: dict[str, Trained], method: str
+) -> None:
     """Above, the measured blocks with their run's offset taken off and the fit; below, the residual about
     each run's own mean: what table 3 scores."""
     t = trained[method]

@@ -189,10 +189,12 @@ def run_offsets(t: Trained) -> np.ndarray:
 
 def _fit_caption(method: str, t: Trained, unit: str) -> str:
     offsets = run_offsets(t)
-    each = ", ".join(f"{info['name']} {offsets[t.data.groups == index][0]:+.3g}" for index, info in enumerate(t.data.runs))
-    return (f"{method}: the training runs' block errors (dots) and the fit above, the residual below, each run's "
-            f"own offset (its turn-on bias, which the fit removes and table 3 does not score) taken off: {each} "
-            f"{unit}. The residual should look like noise about zero, with no shape that follows the temperature.")  # fmt: skip
+    first = [offsets[t.data.groups == index][0] for index in range(len(t.data.runs))]
+    each = ", ".join(f"{info['name']} {offset:+.3g}" for info, offset in zip(t.data.runs, first))
+    return (f"{method}: the training runs' block errors (dots) and the fit above, the residual below, each "
+            f"run's own offset (its turn-on bias, which the fit removes and table 3 does not score) taken off: "
+            f"{each} {unit}. The residual should look like noise about zero, with no shape that follows the "
+            "temperature.")  # fmt: skip
 
 
 def _fit_figure(method: str, t: Trained, colour: str, block_s: float, unit: str) -> Figure:
@@ -283,6 +285,10 @@ def _hysteresis_figure(trained: dict[str, Trained], colours: dict[str, str], uni
         axis.grid(True, alpha=0.4)
         axis.legend(fontsize=8, loc="best")
         axis.label_outer()
+    empty = len(trained) % cols  # panels above an empty one are the last of their column
+    for axis in axes[-2, empty:] if empty else ():
+        axis.xaxis.set_tick_params(labelbottom=True)
+        axis.set_xlabel("temperature (C)")
     return figure
 
 
@@ -302,9 +308,9 @@ def _hysteresis_caption(trained: dict[str, Trained]) -> list[str]:
 
 def _what_inputs_carry(specs: tuple[InputSpec, ...]) -> str:
     kinds = {spec.kind for spec in specs}
-    carriers = [text for kind, text in ((TEMP_RATE, "the eq. 16 temperature rate"),
-                                        (TEMP_LAG, "lagged temperatures (the coil's)"),
-                                        (TEMP_PLAY, "the play operator (heating or cooling)")) if kind in kinds]  # fmt: skip
+    named = ((TEMP_RATE, "the eq. 16 temperature rate"), (TEMP_LAG, "lagged temperatures (the coil's)"),
+             (TEMP_PLAY, "the play operator (heating or cooling)"))
+    carriers = [text for kind, text in named if kind in kinds]
     if not carriers:
         return ("a model of temperature alone: one value per temperature, so its lines lie on one curve and "
                 "cannot follow branches apart.")
