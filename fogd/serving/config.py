@@ -103,7 +103,8 @@ OPTIONS = (
     Option("model", _text, "text", DEFAULT_MODEL, f"model file from fogd-train (default: {DEFAULT_MODEL}; with "
            "--demo the bundled demo model)", metavar="PATH", reloadable=True),
     Option("out", _text, "text", "-", "where compensated frames go: '-' stdout, a file or serial/pty device path, "
-           "or pty:PATH (fogd makes a pty and links PATH to it) (default: '-' when stdout is a terminal; "
+           "or pty:PATH (fogd makes a pty and links PATH to it; frames go to it only while a reader holds it, who "
+           "gets the CSV header and then live frames) (default: '-' when stdout is a terminal; "
            "required otherwise, as under systemd)", metavar="SINK"),
     Option("out_format", _text, "choice", "same", "output format: 'same' re-encodes the input protocol with the "
            "compensated rate and a fresh CRC; 'fogd' fogd compensated-output frames; 'csv' fogd-replay's columns; "
