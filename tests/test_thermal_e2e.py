@@ -125,3 +125,74 @@ def test_sigkill_mid_ramp_and_restart_equals_uninterrupted_replay(tmp_path, bank
     cold = replayed(tmp_path, bank_model, {k: v[back_row:] for k, v in run.items()}, "cold")
     assert np.max(np.abs(cold[:, 4] - expected[:, 4])) > 10 * TOLERANCE * thermal_error_dph
     assert (cold[:, 6].astype(int) & WARMING).any()
+
+
+def test_reload_mid_ramp_paper_inputs_to_lag_bank_and_back_equals_replay_with_each_model(tmp_path, bank_model):
+    paper_model = save(tmp_path / "paper.json", paper_document())
+    run = ramp_run(6000.0)
+    to_bank, to_paper = int(3600 * RATE_HZ), int(4800 * RATE_HZ)  # both mid-ramp (it starts at 1,800 s)
+    config = tmp_path / "fogd.yaml"
+    config.write_text(f"model: {paper_model}\n")
+    out = tmp_path / "out.csv"
+    port = Pty()
+    try:
+        fogd = start(tmp_path / "fogd", port, "--config", str(config), "--state-file", "none", "--out", str(out))
+        try:
+            stream(port, fogd, out, run, slice(0, to_bank))
+            for model, rows, reloads in ((bank_model, slice(to_bank, to_paper), 1), (paper_model, slice(to_paper, None), 2)):
+                config.write_text(f"model: {model}\n")
+                fogd.process.send_signal(signal.SIGHUP)
+                wait_until(lambda: fogd.stderr.count("reloaded: model") == reloads, "the reload", fogd)
+                stream(port, fogd, out, run, rows)
+            assert fogd.terminate()[0] == 0, fogd.stderr
+        finally:
+            fogd.kill()
+    finally:
+        port.close()
+    assert fogd.stderr.count("estimator state new inputs primed from") == 2, fogd.stderr
+    served = rows_of(out)
+    paper, bank = replayed(tmp_path, paper_model, run, "paper"), replayed(tmp_path, bank_model, run, "bank")
+    for expected, rows in ((paper, slice(0, to_bank)), (bank, slice(to_bank, to_paper)), (paper, slice(to_paper, None))):
+        thermal_error_dph = float(np.std(expected[rows, 4]))
+        worst_dph = float(np.max(np.abs(served[rows, 4] - expected[rows, 4])))
+        print(f"rows {rows.start}..: worst {worst_dph:.3g} deg/h = {100 * worst_dph / thermal_error_dph:.3f} % of "
+              f"{thermal_error_dph:.3g}")  # fmt: skip
+        assert worst_dph <= TOLERANCE * thermal_error_dph
+        assert served[rows, 6].tolist() == expected[rows, 6].tolist()
+    # a bank started afresh at the reload (what the daemon did before) is far off: the test can fail
+    fresh = replayed(tmp_path, bank_model, {k: v[to_bank:to_paper] for k, v in run.items()}, "fresh")
+    assert np.max(np.abs(fresh[:, 4] - bank[to_bank:to_paper, 4])) > 10 * TOLERANCE * float(np.std(bank[to_bank:to_paper, 4]))
+
+
+@pytest.mark.parametrize("where", ["mid-ramp", "equilibrium"])
+def test_cold_start_flags_warming_as_replay_does_and_counts_it(tmp_path, bank_model, where):
+    run = ramp_run(9000.0)
+    rows = slice(int(5400 * RATE_HZ), int(7200 * RATE_HZ)) if where == "mid-ramp" else slice(0, int(1200 * RATE_HZ))
+    part = {key: values[rows] for key, values in run.items()}
+    out = tmp_path / "out.csv"
+    port = Pty()
+    try:
+        fogd = start(tmp_path / "fogd", port, "--model", str(bank_model), "--state-file", "none", "--out", str(out))
+        try:
+            stream(port, fogd, out, part, slice(None))
+            fogd.process.send_signal(signal.SIGUSR1)
+            fogd.wait_for("counters ")
+            counters = json.loads(fogd.stderr.split("counters ", 1)[1].splitlines()[0])
+            assert fogd.terminate()[0] == 0, fogd.stderr
+        finally:
+            fogd.kill()
+    finally:
+        port.close()
+    served, expected = rows_of(out), replayed(tmp_path, bank_model, part, "part")
+    np.testing.assert_allclose(served[:, :6], expected[:, :6], rtol=1e-9, atol=2e-10)  # (the CSV's 10 decimals)
+    flags = served[:, 6].astype(int)
+    assert flags.tolist() == expected[:, 6].tolist()
+    warming = (flags & WARMING) != 0
+    assert counters["loop"]["samples_warming"] == int(warming.sum())
+    assert "cold start" in fogd.stderr
+    cleared_s = float(served[~warming, 0][0] - served[0, 0]) if not warming.all() else np.inf
+    print(f"{where}: WARMING for {cleared_s:.0f} s")
+    if where == "equilibrium":
+        assert cleared_s <= 600.0 and not warming[int(cleared_s * RATE_HZ) + 1 :].any()  # within minutes, for good
+    else:
+        assert warming.all()  # 30 minutes into the hour after a start mid-ramp, the 3,000 s lag still rests on it
