@@ -80,6 +80,7 @@ class TempHistory:
         self.blocks: deque[tuple[float, float]] = deque(maxlen=int(self.span_s / self.step_s) + 2)
         self.tail: deque[float] = deque(maxlen=max(1, min(MAX_TAIL_SAMPLES, int(tail_s * rate_hz))))
         self.last: tuple[float, float] | None = None  # the newest sample (t_s, temp_c)
+        self.first: tuple[float, float] | None = None  # the first sample, while its block is kept: where a run starts
         self._block = -1  # the current block's index (floor(t / step))
         self._sum_t = self._sum_c = 0.0
         self._count = 0
@@ -98,6 +99,8 @@ class TempHistory:
         self._sum_c += temp_c
         self._count += 1
         self.tail.append(temp_c)
+        if self.last is None and not self.blocks:
+            self.first = (t_s, temp_c)
         self.last = (t_s, temp_c)
         self.samples += 1
 
@@ -107,14 +110,17 @@ class TempHistory:
 
     def _close(self) -> None:
         if self._count:
+            if len(self.blocks) == self.blocks.maxlen:
+                self.first = None  # the run's start has left the history
             self.blocks.append((self._sum_t / self._count, self._sum_c / self._count))
         self._sum_t = self._sum_c = 0.0
         self._count = 0
 
     def points(self) -> list[tuple[float, float]]:
-        """The block means (the current block's so far) and the newest sample: the line the history is read
-        as, oldest first."""
-        out = list(self.blocks)
+        """The first sample (while the history holds the run's start: the lags start in steady state there, as
+        fogd.core.lag's do), the block means (the current block's so far) and the newest sample: the line the
+        history is read as, oldest first."""
+        out = ([self.first] if self.first is not None else []) + list(self.blocks)
         if self._count:
             out.append((self._sum_t / self._count, self._sum_c / self._count))
         if self.last is not None and (not out or self.last[0] > out[-1][0]):
@@ -125,6 +131,7 @@ class TempHistory:
         """Start from saved points (fogd.serving.thermalstate): the blocks, then the newest sample; no raw tail."""
         self.blocks.clear()
         self.blocks.extend(points[:-1])
+        self.first = None
         self.tail.clear()
         self._block, self._count = -1, 0
         self._sum_t = self._sum_c = 0.0
