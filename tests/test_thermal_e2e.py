@@ -196,3 +196,15 @@ def test_cold_start_flags_warming_as_replay_does_and_counts_it(tmp_path, bank_mo
         assert cleared_s <= 600.0 and not warming[int(cleared_s * RATE_HZ) + 1 :].any()  # within minutes, for good
     else:
         assert warming.all()  # 30 minutes into the hour after a start mid-ramp, the 3,000 s lag still rests on it
+
+
+def test_replay_from_mid_ramp_is_the_restart_the_daemon_makes(tmp_path, bank_model):
+    """fogd-replay --from T: the rows before T are the history, as a daemon restarted at T finds it: the rest
+    equals the replay of the whole run within the tolerance, and nothing is WARMING."""
+    run = ramp_run(9000.0)
+    start = int(5400 * RATE_HZ)
+    whole = replayed(tmp_path, bank_model, run, "whole")[start:]
+    restarted = replayed(tmp_path, bank_model, run, "from", "--from", "5400")
+    np.testing.assert_array_equal(restarted[:, 0], whole[:, 0])
+    assert np.max(np.abs(restarted[:, 4] - whole[:, 4])) <= TOLERANCE * float(np.std(whole[:, 4]))
+    assert not (restarted[:, 6].astype(int) & WARMING).any()
