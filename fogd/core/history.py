@@ -37,6 +37,8 @@ TAIL_S = 300.0  # raw samples kept: eq. 16 windows up to this long are primed ex
 MAX_TAIL_SAMPLES = 100_000
 RECENT_S = 600.0  # the last stretch a dequantiser (and every input with it) is fed at full rate when primed
 MAX_RECENT_SAMPLES = 200_000
+THIN_AFTER_S = 3600.0  # what the state file keeps of the history older than this: every THIN_EVERY-th point
+THIN_EVERY = 10
 FEED_CHUNK = 4096  # fogd.core.lag.PYTHON_CHUNK: priming never maps scipy
 
 
@@ -66,6 +68,17 @@ def ramp_points(t_s: float, temp_c: float, rate_cps: float, span_s: float) -> li
     """A history that ends at (t_s, temp_c) after rising at `rate_cps` for `span_s`: the past the warming bound
     assumes (fogd.core.warming)."""
     return [(t_s - span_s, temp_c - rate_cps * span_s), (t_s, temp_c)]
+
+
+def thinned(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """What the state file keeps: every THIN_EVERY-th point older than THIN_AFTER_S (history that old matters
+    only to lags of a thousand seconds and more, which a 10 s line serves as well), the rest as they are; a third
+    of the bytes of the full history."""
+    if not points:
+        return points
+    cut_s = points[-1][0] - THIN_AFTER_S
+    old = [point for point in points[:-1] if point[0] < cut_s]
+    return old[::-THIN_EVERY][::-1] + points[len(old) :] if old else points
 
 
 class TempHistory:

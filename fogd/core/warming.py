@@ -22,7 +22,7 @@ import numpy as np
 from fogd.core.compensator import Compensated, Compensator, temperature_valid
 from fogd.core.flags import Flag
 from fogd.core.frozen import FrozenModel
-from fogd.core.history import MIN_SPAN_S, SPAN_FACTOR, TempHistory, ramp_points
+from fogd.core.history import MIN_SPAN_S, SPAN_FACTOR, TempHistory, ramp_points, thinned
 from fogd.core.inputs import InputBank
 
 PROBE_S = 300.0
@@ -161,7 +161,7 @@ def replay_rules(compensator: Compensator, t_s: np.ndarray, rate_dph: np.ndarray
         past = TempHistory(rate_hz, span_s=max(MIN_SPAN_S, SPAN_FACTOR * max(taus, default=0.0)))
         past.extend(t_s[before].tolist(), temp_c[before].tolist())
         restarted = TempHistory(rate_hz, span_s=past.span_s)
-        restarted.restore(past.points(), past.samples)
+        restarted.restore(thinned(past.points()), past.samples)  # what the daemon's state file holds
         later = np.flatnonzero(valid[start:])
         if later.size:
             restarted.bridge(float(t_s[start + later[0]]), float(temp_c[start + later[0]]))

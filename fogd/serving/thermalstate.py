@@ -30,7 +30,7 @@ from fogd.core.channels import ChannelCompensator
 from fogd.core.compensator import TEMP_VALID_C
 from fogd.core.flags import Flag
 from fogd.core.frozen import FrozenModel
-from fogd.core.history import MIN_SPAN_S, SPAN_FACTOR, TempHistory
+from fogd.core.history import MIN_SPAN_S, SPAN_FACTOR, TempHistory, thinned
 from fogd.core.modelfile import printable
 from fogd.core.warming import MODES, WarmingBound, apply_mode
 
@@ -127,7 +127,7 @@ def parse(data: bytes) -> Saved:
 def write(path: str, history: TempHistory, device: str, clock: str) -> None:
     """The history, atomically: a temporary file in the same directory, fsynced, renamed over `path` (a symlink
     there is replaced, its target never written)."""
-    points = history.points()
+    points = thinned(history.points())
     doc = {
         "format": FORMAT, "version": VERSION, "device": device, "clock": clock, "samples": history.samples,
         "saved_unix_s": round(time.time(), 3), "last_t_s": points[-1][0], "last_temp_c": points[-1][1],
