@@ -48,7 +48,7 @@ class WarmingBound:
         self.start_rate_cps = math.nan
         self.rate_margin_cps = math.nan
         self.samples = 0  # samples seen while active
-        self._probe: list[tuple[float, float]] = []
+        self._probe = TempHistory(rate_hz, span_s=2 * self.probe_s, tail_s=0.0)  # its block means: O(1) a sample
         self._assumed = InputBank(model.inputs, rate_hz)  # what the compensator runs: equilibrium at the first
         self._banks: list[InputBank] = []  # the ramp scenarios, once the probe is full
         self.row: tuple[float, ...] | None = None  # the assumed inputs of the newest sample
@@ -67,8 +67,8 @@ class WarmingBound:
         self.samples += 1
         self.row = self._assumed.update_one(temp_c)
         if not self._banks:
-            self._probe.append((t_s, temp_c))
-            if t_s - self._probe[0][0] >= self.probe_s:
+            self._probe.add(t_s, temp_c)
+            if t_s - self._probe.first[0] >= self.probe_s:
                 self._start()
             return True
         rows = [bank.update_one(temp_c) for bank in self._banks]
@@ -97,22 +97,25 @@ class WarmingBound:
         return bound
 
     def _start(self) -> None:
-        """The probe is full: the start rate and its margin, and the banks, fed the probe."""
-        times = [t for t, _ in self._probe]
-        temps = [c for _, c in self._probe]
-        self.start_rate_cps, stderr_cps = _slope(times, temps)
+        """The probe is full: the start rate and its margin from its block means, and the scenario banks, primed
+        with a ramp up to the first sample and the probe's block means after it (their difference from the
+        samples themselves is far below the tolerance, and gone once the banks have been fed the same samples
+        for a while)."""
+        probe = self._probe
+        means = probe.points()[1:-1] or probe.points()
+        self.start_rate_cps, stderr_cps = _slope([t for t, _ in means], [c for _, c in means])
         self.rate_margin_cps = SIGMAS * stderr_cps
-        t0_s, temp0_c = self._probe[0]
+        t0_s, temp0_c = probe.first
         span_s = max(MIN_SPAN_S, SPAN_FACTOR * max((spec.tau_s or 0.0 for spec in self.model.inputs), default=0.0))
         before_s = 1.0 / self.rate_hz
         for rate_cps in (self.start_rate_cps - self.rate_margin_cps, self.start_rate_cps + self.rate_margin_cps):
             history = TempHistory(self.rate_hz, span_s=span_s)  # a past that was a steady ramp, to the first sample
-            history.restore(ramp_points(t0_s - before_s, temp0_c - rate_cps * before_s, rate_cps, span_s), 0)
-            history.extend(times, temps)
+            ramp = ramp_points(t0_s - before_s, temp0_c - rate_cps * before_s, rate_cps, span_s)
+            history.restore(ramp + probe.points(), probe.samples)
             bank = InputBank(self.model.inputs, self.rate_hz)
             history.prime(bank)
             self._banks.append(bank)
-        self._probe = []
+        self._probe = None
 
 
 def _slope(times: list[float], temps: list[float]) -> tuple[float, float]:
