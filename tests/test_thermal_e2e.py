@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import subprocess
 import time
 from pathlib import Path
 
@@ -172,9 +173,16 @@ def test_cold_start_flags_warming_as_replay_does_and_counts_it(tmp_path, bank_mo
     out = tmp_path / "out.csv"
     port = Pty()
     try:
-        fogd = start(tmp_path / "fogd", port, "--model", str(bank_model), "--state-file", "none", "--out", str(out))
+        stats = tmp_path / "stats.json"
+        fogd = start(tmp_path / "fogd", port, "--model", str(bank_model), "--state-file", "none", "--out", str(out),
+                     "--stats-file", str(stats))  # fmt: skip
         try:
             stream(port, fogd, out, part, slice(None))
+            total = part["t_s"].size
+            wait_until(lambda: stats.exists() and json.loads(stats.read_text())["counters"]["loop"]["samples_compensated"] == total,
+                       "the stats file of the last sample", fogd)  # fmt: skip
+            status = subprocess.run([*FOGD, "--status", "--stats-file", str(stats)], capture_output=True, text=True,
+                                    timeout=30).stdout  # fmt: skip
             fogd.process.send_signal(signal.SIGUSR1)
             fogd.wait_for("counters ")
             counters = json.loads(fogd.stderr.split("counters ", 1)[1].splitlines()[0])
@@ -190,6 +198,7 @@ def test_cold_start_flags_warming_as_replay_does_and_counts_it(tmp_path, bank_mo
     warming = (flags & WARMING) != 0
     assert counters["loop"]["samples_warming"] == int(warming.sum())
     assert "cold start" in fogd.stderr
+    assert "thermal state: cold" in status and ("WARMING" in status) == (where == "mid-ramp"), status
     cleared_s = float(served[~warming, 0][0] - served[0, 0]) if not warming.all() else np.inf
     print(f"{where}: WARMING for {cleared_s:.0f} s")
     if where == "equilibrium":
