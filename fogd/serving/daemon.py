@@ -418,15 +418,12 @@ class Daemon:
         model, models = reload.model, as_models(reload.model)
         new = reload.compensator or self._compensator(models, self.rate_hz)
         kept = _carry_state(self.compensator, new)
-        primed = "reset (inputs differ): warm-up again"
-        if not kept and self.thermal is not None:
-            primed = "new inputs " + self.thermal.reloaded([models[c] for c in self.plan.covered], new)
+        state = "kept (same inputs)" if kept else "reset (inputs differ): warm-up again"
+        if self.thermal is not None:  # the history primes new inputs (serving.thermalstate)
+            state = self.thermal.reloaded([models[c] for c in self.plan.covered], new, prime=not kept)
         self.compensator, self.model, self.models = new, model, models
         self.counters.reloads += 1
-        log.warning(
-            "reloaded: model %s (%s); estimator state %s", printable(model.name), method(models),
-            "kept (same inputs)" if kept else primed,
-        )  # fmt: skip
+        log.warning("reloaded: model %s (%s); estimator state %s", printable(model.name), method(models), state)
 
     def _drain(self) -> None:
         """Compensate and hand on every batch in the ring."""

@@ -252,15 +252,19 @@ class Thermal:
         return len(warming)
 
     # -- reload -----------------------------------------------------------------------------------------------
-    def reloaded(self, models: list[FrozenModel], compensator: ChannelCompensator) -> str:
-        """A new model whose inputs differ: prime its compensator from the history; what was done, for the log."""
+    def reloaded(self, models: list[FrozenModel], compensator: ChannelCompensator, *, prime: bool) -> str:
+        """A new model: its compensator primed from the history when its inputs differ (`prime`), and the WARMING
+        bound of the new model over the same start while it lasts; what was done, for the log."""
         self.models = models
-        if self.history.last is None:
-            return "no history yet"
-        compensator.prime(self.history)
-        if self.bound is not None:  # still warming: the bound of the new model, over the same start
+        if self.bound is not None:
             self.bound = self.bound.for_model(models[0], self.history)
-        return f"primed from {len(self.history)} points of history ({self.history.points()[-1][0] - self.history.points()[0][0]:.0f} s)"
+        if not prime:
+            return "kept (same inputs)"
+        if self.history.last is None:
+            return "reset (inputs differ; no temperature yet)"
+        compensator.prime(self.history)
+        points = self.history.points()
+        return f"new inputs primed from {len(points)} points of history ({points[-1][0] - points[0][0]:.0f} s)"
 
     # -- persistence ------------------------------------------------------------------------------------------
     def save(self, *, wait: bool = False) -> None:
