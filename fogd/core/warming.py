@@ -149,8 +149,10 @@ def apply_mode(columns: list, warming: list[tuple[int, float | None]], mode: str
 
 
 
-def replay_rules(compensator: Compensator, t_s: np.ndarray, rate_dph: np.ndarray, temp_c: np.ndarray, start: int = 0,
-                 *, mode: str = MODES[0], tolerance_dph: float = TOLERANCE_DPH, chunk_rows: int = 1 << 18) -> Compensated:  # fmt: skip
+def replay_rules(
+    compensator: Compensator, t_s: np.ndarray, rate_dph: np.ndarray, temp_c: np.ndarray, start: int = 0, *,
+    mode: str = MODES[0], tolerance_dph: float = TOLERANCE_DPH, chunk_rows: int = 1 << 18,
+) -> Compensated:  # fmt: skip
     """The daemon's thermal rules over a recorded run (fogd-replay): the rows before `start` are the history a
     restart at row `start` finds (decimated, with no raw tail, as the state file holds it; bridged to that row's
     temperature) and the rows from `start` on are compensated, which it returns; with no valid temperature

@@ -191,7 +191,8 @@ class Thermal:
             compensator.prime(self.history)
             return
         log.warning("thermal state: %s; cold start: the inputs assume equilibrium at %.3f C, samples flagged "
-                    "WARMING until the assumption's error bound is below %g deg/h", reason, temp_c, self.tolerance_dph)  # fmt: skip
+                    "WARMING until the assumption's error bound is below %g deg/h",
+                    reason, temp_c, self.tolerance_dph)  # fmt: skip
         self.started = "cold"
         self.bound = WarmingBound(self.models[0], self.rate_hz, tolerance_dph=self.tolerance_dph)
 
@@ -208,7 +209,8 @@ class Thermal:
         except OSError as error:
             return f"state file {printable(self.path)} unreadable ({error.strerror or error})"
         if saved.device != self.device:
-            return f"state file {printable(self.path)} is of another device ({printable(saved.device)[:80]}, not {printable(self.device)})"
+            return (f"state file {printable(self.path)} is of another device ({printable(saved.device)[:80]}, "
+                    f"not {printable(self.device)})")  # fmt: skip
         if saved.clock != self.clock:
             return f"state file {printable(self.path)} is on the {saved.clock} clock, this run on the {self.clock} clock"
         gap_s = now_s - saved.last_t_s
