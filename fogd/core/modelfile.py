@@ -116,11 +116,8 @@ def save(path: str | Path, document: dict[str, Any], *, inputs: list[str] = ()) 
     else:
         from_document(document, source=str(path))
     text = json.dumps(document, indent=1, allow_nan=False)
-    try:
-        with replaced(str(path), inputs=inputs) as stream:
-            stream.write(text + "\n")
-    except OSError as error:
-        raise ModelFileError(f"cannot write model: {describe_os_error(error)}") from None
+    with replaced(str(path), inputs=inputs) as stream:  # OutputError (74) naming the path when it cannot be written
+        stream.write(text + "\n")
 
 
 def document(

@@ -265,23 +265,13 @@ def _line_of(row: int, text: _Text, header_line: int) -> int:
     return [number for number, line in enumerate(lines, start=header_line + 1) if line][int(row)]
 
 
-def open_output(path: str) -> IO[str]:
-    """A text stream for `path`, or stdout for '-'; raises InputError if it cannot be created."""
-    if path == "-":
-        return sys.stdout
-    try:
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        return open(path, "w", newline="\n", encoding="utf-8")
-    except OSError as error:
-        raise InputError(f"cannot write {path}: {error.strerror or error}") from None
-
-
 def write_csv(
     path: str, columns: dict[str, np.ndarray], formats: dict[str, str], *, comments: list[str] = (), inputs: list[str] = ()
 ) -> None:
     """Write equal-length columns as CSV (header from the dict's keys), in chunks to bound memory. A file is
-    replaced whole (fogd.core.atomic): a failed write leaves the old one as it was; an output that is one of
-    `inputs` is refused."""
+    replaced whole, '-', a FIFO or a character device written as a stream (fogd.core.atomic): a failed write
+    leaves the old file as it was and is an OutputError naming `path`; an output that is one of `inputs` is
+    refused."""
     names = list(columns)
     length = len(next(iter(columns.values())))
     fmt = ",".join(formats.get(name, "%.9g") for name in names)
@@ -294,15 +284,8 @@ def write_csv(
             block = np.column_stack([np.asarray(columns[name][start:stop], dtype=np.float64) for name in names])
             np.savetxt(stream, block, fmt=fmt, delimiter=",")
 
-    try:
-        if path == "-":
-            write(sys.stdout)
-            sys.stdout.flush()
-            return
-        with replaced(path, inputs=inputs) as stream:
-            write(stream)
-    except OSError as error:
-        raise InputError(f"cannot write {path}: {describe_os_error(error)}") from None
+    with replaced(path, inputs=inputs) as stream:
+        write(stream)
 
 
 def _chunks(length: int, size: int) -> Iterator[tuple[int, int]]:
