@@ -17,6 +17,7 @@ import logging
 import math
 import os
 import random
+import secrets
 import select
 import struct
 import termios
@@ -293,12 +294,17 @@ def point_link(link: str, target: str) -> None:
     """Make `link` a symlink to `target`, replacing an old link atomically (never a regular file)."""
     if os.path.lexists(link) and not os.path.islink(link):
         raise DeviceError(f"{link}: exists and is not a symlink; refusing to replace it")
-    temporary = f"{link}.{os.getpid()}.{threading.get_ident()}.tmp"
+    directory, name = os.path.split(link)
+    temporary = os.path.join(directory, f".{name}.{secrets.token_hex(8)}.tmp")  # random: nothing planted sits there
     try:
-        os.symlink(target, temporary)
-        os.replace(temporary, link)
-    except OSError as error:
-        raise DeviceError(f"cannot create link {describe_os_error(error)}") from None
+        os.symlink(target, temporary)  # never follows: fails if anything is at that name
+        try:
+            os.replace(temporary, link)
+        except OSError:
+            os.unlink(temporary)
+            raise
+    except OSError as error:  # the link's path, not the pty's (/dev/pts/N is fine; the link's directory is not)
+        raise DeviceError(f"cannot create link {link}: {error.strerror or error}") from None
 
 
 def remove_link(link: str, target: str) -> None:
