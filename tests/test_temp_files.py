@@ -10,6 +10,9 @@ import stat
 import threading
 from pathlib import Path
 
+import pytest
+
+from fogd.errors import DeviceError
 from fogd.serving.statsfile import write_stats
 from fogd.simulation.emulator import point_link
 
@@ -50,3 +53,11 @@ def test_the_emulators_link_is_made_beside_a_fifo_planted_at_its_old_temporary_n
     (tmp_path / f"fog0.{os.getpid()}.{threading.get_ident()}.tmp").mkdir()
     point_link(str(link), "/dev/null")
     assert os.readlink(link) == "/dev/null"
+
+
+def test_a_link_that_cannot_be_made_names_the_link_not_the_pty(tmp_path):
+    """Issue 35.14: a pty link on a read-only filesystem blamed /dev/pts/N (the symlink's target)."""
+    link = tmp_path / "missing" / "fog0"
+    with pytest.raises(DeviceError) as raised:
+        point_link(str(link), "/dev/pts/7")
+    assert str(link) in str(raised.value) and "/dev/pts" not in str(raised.value)
