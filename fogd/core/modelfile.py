@@ -294,7 +294,7 @@ def check_output(model: FrozenModel, source: str = "model") -> None:
         bad = ~(np.abs(y) <= MAX_COMP_DPH)
         if bad.any():
             raise ModelOutputError(
-                f"{source}: {printable(each.name or 'the model')[:60]} gives {y[bad][0]!r} deg/h inside its own domain "
+                f"{source}: {printable(each.name or 'the model')[:60]} gives {float(y[bad][0])!r} deg/h inside its own domain "
                 f"(the limit is {MAX_COMP_DPH:g}); a corrupt or hostile model",
                 float(y[bad][0]),
             )
