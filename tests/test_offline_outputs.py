@@ -7,6 +7,8 @@ is checked before the training or simulation, not after."""
 from __future__ import annotations
 
 import os
+import resource
+import shutil
 import select
 import socket
 import stat
@@ -201,3 +203,48 @@ def test_report_naming_an_existing_file_is_refused_before_training(tmp_path, cap
     line = refused(capsys, train_cli.main([str(run), "-o", str(tmp_path / "m.json"), "--report", str(blocker), "-q"]))
     assert str(blocker) in line and "not a directory" in line
     assert not (tmp_path / "m.json").exists() and blocker.read_text() == "keep me\n"
+
+
+def can_mount_in_a_namespace() -> bool:
+    if shutil.which("unshare") is None:
+        return False
+    probe = subprocess.run(["unshare", "-m", "sh", "-c", "mount -t tmpfs -o size=4k none /mnt"], capture_output=True)
+    return probe.returncode == 0
+
+
+@pytest.mark.parametrize("mechanism", ["tmpfs", "rlimit"])
+def test_no_space_left_is_74_naming_the_path_and_the_old_output_stays_whole(tmp_path, mechanism):
+    """Issue 35.14: no space left gave 65 and a message without the path. The disk fills for real: an 8 KiB
+    tmpfs in a private mount namespace, or a file-size limit (RLIMIT_FSIZE) where mounting is not allowed."""
+    run = write_small_run(tmp_path / "run.csv")
+    model = write_model(tmp_path / "m.json")
+    old = b"t_s,rate_dph,temp_c\n0.0,0.0,20.0\n"
+    replay = [sys.executable, "-m", "fogd.cli.replay", str(model), str(run), "-o"]
+    if mechanism == "tmpfs":
+        if not can_mount_in_a_namespace():
+            pytest.skip("no mount namespace here (unshare -m and mount need CAP_SYS_ADMIN)")
+        disk = tmp_path / "disk"
+        disk.mkdir()
+        (tmp_path / "old.csv").write_bytes(old)
+        output = disk / "out.csv"
+        script = ('mount -t tmpfs -o size=8k none "$0" || exit 99; cp "$0.old" "$0/out.csv"; "$@"; status=$?; '
+                  'ls -A "$0" > "$0.listing"; cp "$0/out.csv" "$0.out"; exit $status')  # fmt: skip
+        (tmp_path / "disk.old").write_bytes(old)
+        result = subprocess.run(["unshare", "-m", "sh", "-c", script, str(disk), *replay, str(output)],
+                                capture_output=True, text=True, timeout=300)  # fmt: skip
+        left, kept = (tmp_path / "disk.listing").read_text().split(), (tmp_path / "disk.out").read_bytes()
+        reason = "No space left on device"
+    else:
+        output = tmp_path / "out" / "out.csv"
+        output.parent.mkdir()
+        output.write_bytes(old)
+
+        def limited() -> None:
+            resource.setrlimit(resource.RLIMIT_FSIZE, (8192, 8192))
+
+        result = subprocess.run([*replay, str(output)], capture_output=True, text=True, timeout=300, preexec_fn=limited)
+        left, kept = os.listdir(output.parent), output.read_bytes()
+        reason = "File too large"
+    assert result.returncode == 74, result.stderr
+    assert result.stderr.strip().splitlines() == [f"fogd-replay: cannot write {output}: {reason}"]
+    assert kept == old and left == ["out.csv"]  # the old file whole, no temporary left behind
