@@ -143,7 +143,7 @@ def refused(capsys, status: int) -> str:
     return lines[0]
 
 
-def test_a_directory_a_socket_and_a_block_device_are_refused_before_the_simulation(tmp_path, profile, capsys, monkeypatch):
+def test_a_directory_a_socket_and_a_block_device_are_refused_before_simulating(tmp_path, profile, capsys, monkeypatch):
     def never(*args, **kwargs):
         raise AssertionError("simulated before checking its output")
 

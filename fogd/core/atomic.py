@@ -56,7 +56,7 @@ def output_kind(path: str) -> str:
         return STREAM
     if stat.S_ISREG(mode):
         return REPLACE
-    kind = "a directory" if stat.S_ISDIR(mode) else "a block device" if stat.S_ISBLK(mode) else "a socket or other special file"
+    kind = "a directory" if stat.S_ISDIR(mode) else "a block device" if stat.S_ISBLK(mode) else "a socket"
     raise OSError(errno.EINVAL, f"{kind}; an output is a regular file, a FIFO, a character device or '-'", path)
 
 

@@ -238,7 +238,9 @@ def _read_bounded(path: str) -> bytes:
 
 def _refuse_utf16(path: str, start: bytes) -> None:
     head = start[:256]
-    interleaved = len(head) >= 8 and any(not head[side::2].strip(b"\0") and b"\0" not in head[1 - side :: 2] for side in (0, 1))
+    interleaved = len(head) >= 8 and any(  # one byte of every two NUL, the others not: UTF-16 without a BOM
+        not head[side::2].strip(b"\0") and b"\0" not in head[1 - side :: 2] for side in (0, 1)
+    )
     if head.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)) or interleaved:
         raise InputError(f"{path}: UTF-16 text; save it as UTF-8 (a run CSV is plain ASCII)")
 
@@ -263,7 +265,9 @@ class _LineLimit:
             if b"\n" not in piece:
                 line = self.newlines + text.count(b"\n", 0, start) + 1
                 if b"\r" in piece:
-                    raise InputError(f"{self.path}:{line}: CR line endings (an old Mac text file); save it with LF line endings")
+                    raise InputError(
+                        f"{self.path}:{line}: CR line endings (an old Mac text file); save it with LF line endings"
+                    )
                 raise InputError(f"{self.path}:{line}: a line longer than {block} bytes; not a run CSV")
         self.newlines += text.count(b"\n", 0, whole)
         self.pending = text[whole:]

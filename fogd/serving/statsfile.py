@@ -38,7 +38,8 @@ def write_stats(path: str, snapshot: dict[str, Any]) -> bool:
     try:
         # a random name made with O_EXCL|O_NOFOLLOW: a link or FIFO planted at a predictable name (stats files
         # live in /tmp in the README's example) is never followed, written or waited on
-        fd, temporary = tempfile.mkstemp(dir=os.path.dirname(path) or ".", prefix=f".{os.path.basename(path)}.", suffix=".tmp")
+        directory, name = os.path.split(path)
+        fd, temporary = tempfile.mkstemp(dir=directory or ".", prefix=f".{name}.", suffix=".tmp")
         os.fchmod(fd, 0o644)  # readable by fogd-top and --status of other users, as before
         with os.fdopen(fd, "w", encoding="utf-8") as stream:
             json.dump(_clean(snapshot), stream, allow_nan=False, separators=(",", ":"))
