@@ -248,3 +248,17 @@ def test_no_space_left_is_74_naming_the_path_and_the_old_output_stays_whole(tmp_
     assert result.returncode == 74, result.stderr
     assert result.stderr.strip().splitlines() == [f"fogd-replay: cannot write {output}: {reason}"]
     assert kept == old and left == ["out.csv"]  # the old file whole, no temporary left behind
+
+
+def test_the_emulators_ledger_in_a_directory_is_74_naming_it(tmp_path):
+    """fogd-emu's ledger is a stream written as it goes: a directory named as it is one line, exit 74 (was 65)."""
+    run = write_small_run(tmp_path / "run.csv")
+    result = subprocess.run(
+        [sys.executable, "-m", "fogd.cli.emu", "--csv", str(run), "--link", str(tmp_path / "gyro"),
+         "--ledger", str(tmp_path)],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert result.returncode == 74, result.stderr
+    assert result.stderr.strip().splitlines() == [f"fogd-emu: cannot write ledger {tmp_path}: a directory; an output "
+                                                  "is a regular file, a FIFO, a character device or '-'"]  # fmt: skip
+    assert not os.path.lexists(tmp_path / "gyro")

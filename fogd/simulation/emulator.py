@@ -32,6 +32,7 @@ from typing import Protocol as TypingProtocol
 import numpy as np
 
 from fogd import protocols
+from fogd.core.atomic import output_kind
 from fogd.core.columns import ACCEL_CHANNELS, GYRO_CHANNELS, SINGLE_CHANNEL
 from fogd.core.runio import Run
 from fogd.errors import (
@@ -39,6 +40,7 @@ from fogd.errors import (
     DeviceError,
     FogdError,
     InputError,
+    OutputError,
     describe_os_error,
 )
 from fogd.protocols.base import ALL_AXES, NAN, NO_AXES, Z_ONLY, Frame, FrameError
@@ -408,9 +410,10 @@ class Emulator:
         """Open the pty (and the ledger), start streaming on a thread; returns the slave's path."""
         if self.ledger_path is not None:
             try:
+                output_kind(self.ledger_path)  # a directory, block device or socket, or a missing directory: refused
                 self._ledger = open(self.ledger_path, "w", encoding="utf-8")
             except OSError as error:
-                raise InputError(f"cannot write ledger {describe_os_error(error)}") from None
+                raise OutputError(f"cannot write ledger {self.ledger_path}: {error.strerror or error}") from None
         try:
             self.pty = open_pty(self.link)
         except BaseException:
