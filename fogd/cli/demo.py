@@ -173,19 +173,18 @@ def summary(daemon, means: DriftMeans, wall_s: float) -> str:
     """A few lines for a person: how long, the drift's spread raw and compensated, frames and drops."""
     lexer = daemon.reader.lexer.counters
     drops = lexer.bad_crc + lexer.truncated + lexer.bad_line + daemon.ring.overruns
-    lines = [f"fogd demo: {_hours(means.t_s)} of the gyro's time in {_hours(wall_s)}"]
+    head = f"fogd demo: {_hours(means.t_s)} of the gyro's time in {_hours(wall_s)}"
     blocks = means.blocks
-    if len(blocks) >= 2:
+    if len(blocks) < 2:
+        lines = [head, f"  too short to compare drifts: run it for at least {2 * WINDOW_S / SPEED + 1:.0f} s"]
+    else:
         raw = [block[0] for block in blocks]
         comp = [block[1] for block in blocks]
         raw_spread, comp_spread = max(raw) - min(raw), max(comp) - min(comp)
-        lines.append(f"  drift over {len(blocks)} blocks of {WINDOW_S:g} s: raw {min(raw):+.4f} .. {max(raw):+.4f} deg/h "
-                     f"(spread {raw_spread:.4f}), compensated {min(comp):+.4f} .. {max(comp):+.4f} deg/h "
-                     f"(spread {comp_spread:.4f})")  # fmt: skip
-        if raw_spread > 0:
-            lines.append(f"  compensation took the drift's spread down by {100 * (1 - comp_spread / raw_spread):.0f} %")
-    else:
-        lines.append(f"  too short to compare drifts: run it for at least {2 * WINDOW_S / SPEED + 1:.0f} s")
+        less = f": {100 * (1 - comp_spread / raw_spread):.0f} % less" if raw_spread > 0 else ""
+        lines = [f"{head}; drift over {len(blocks)} blocks of {WINDOW_S:g} s:",
+                 f"  raw          {min(raw):+.4f} .. {max(raw):+.4f} deg/h (spread {raw_spread:.4f})",
+                 f"  compensated  {min(comp):+.4f} .. {max(comp):+.4f} deg/h (spread {comp_spread:.4f}){less}"]  # fmt: skip
     lines.append(f"  frames {lexer.frames_ok}, drops {drops}")
     return "\n".join(lines)
 
