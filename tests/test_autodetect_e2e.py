@@ -76,3 +76,16 @@ def test_a_stream_no_protocol_matches_gets_one_warning_and_sigterm_exits_0(tmp_p
     assert len(warnings) == 1, fogd.stderr
     assert warnings[0].startswith(f"fogd.daemon: protocol auto: nothing recognised on {gyro.path} in 3 s: {looks_like}")
     assert "tried kvh-a, fogd, ascii" in warnings[0] and "Traceback" not in fogd.stderr
+
+
+def test_a_silent_port_gets_one_warning_that_nothing_was_read(tmp_path, model_path, gyro):
+    fogd = Fogd(tmp_path, "--port", gyro.path, "--model", str(model_path), "--stats-file", "none")
+    try:
+        fogd.wait_for("nothing read from", timeout_s=30.0)
+        status, _ = fogd.terminate()
+    finally:
+        fogd.kill()
+    assert status == 0, fogd.stderr
+    warnings = [line for line in fogd.stderr.splitlines() if "protocol auto" in line]
+    assert warnings == [f"fogd.daemon: protocol auto: nothing read from {gyro.path} in 3 s; still listening for kvh-a, "
+                        "fogd, ascii. Is the unit on, streaming, and on this port?"], fogd.stderr  # fmt: skip

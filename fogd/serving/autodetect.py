@@ -57,9 +57,13 @@ def detect(port, path: str, candidates: Sequence[Protocol], *, stopping: threadi
             return found, detector.held
         if not warned and clock() - start_s >= warn_after_s:
             warned = True
-            log.warning("protocol auto: nothing recognised on %s in %g s: %s (%d bytes read); tried %s; still "
-                        "listening. Set --protocol, or check --baud and the unit's output format",
-                        path, warn_after_s, detector.describe(), detector.bytes_seen, tried)  # fmt: skip
+            if detector.bytes_seen:
+                log.warning("protocol auto: nothing recognised on %s in %g s: %s (%d bytes read); tried %s; still "
+                            "listening. Set --protocol, or check --baud and the unit's output format",
+                            path, warn_after_s, detector.describe(), detector.bytes_seen, tried)  # fmt: skip
+            else:
+                log.warning("protocol auto: nothing read from %s in %g s; still listening for %s. Is the unit on, "
+                            "streaming, and on this port?", path, warn_after_s, tried)  # fmt: skip
         if notifier is not None:
             notifier.send("WATCHDOG=1")
         try:
