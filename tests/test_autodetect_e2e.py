@@ -6,6 +6,7 @@ bytes get one warning saying what the bytes look like and what was tried, and SI
 from __future__ import annotations
 
 import re
+import signal
 
 import numpy as np
 import pytest
@@ -89,3 +90,16 @@ def test_a_silent_port_gets_one_warning_that_nothing_was_read(tmp_path, model_pa
     warnings = [line for line in fogd.stderr.splitlines() if "protocol auto" in line]
     assert warnings == [f"fogd.daemon: protocol auto: nothing read from {gyro.path} in 3 s; still listening for kvh-a, "
                         "fogd, ascii. Is the unit on, streaming, and on this port?"], fogd.stderr  # fmt: skip
+
+
+def test_sighup_and_sigusr1_while_detecting_do_not_end_fogd(tmp_path, model_path, gyro):
+    fogd = Fogd(tmp_path, "--port", gyro.path, "--model", str(model_path), "--stats-file", "none")
+    try:
+        fogd.wait_for("nothing read from", timeout_s=30.0)  # still detecting
+        fogd.process.send_signal(signal.SIGHUP)
+        fogd.process.send_signal(signal.SIGUSR1)
+        gyro.write(NMEA)  # fogd reads on after both (what it reads is not recognised: it goes on detecting)
+        status, _ = fogd.terminate()
+    finally:
+        fogd.kill()
+    assert status == 0, fogd.stderr

@@ -255,6 +255,8 @@ def serve(settings: dict[str, Any], protocol: protocols.Protocol | None, model, 
         stopping = threading.Event()
         for signum in (signal.SIGTERM, signal.SIGINT):
             signal.signal(signum, lambda *_: stopping.set())
+        for signum in (signal.SIGHUP, signal.SIGUSR1):  # their default would end fogd; nothing to reload or count yet
+            signal.signal(signum, signal.SIG_IGN)
         try:
             detected = autodetect.detect(port, path, tried, stopping=stopping, received=bytes(received), notifier=notifier,
                                          until_s=started_s + duration_s if duration_s else None)  # fmt: skip
