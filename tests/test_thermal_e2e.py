@@ -217,3 +217,30 @@ def test_replay_from_mid_ramp_is_the_restart_the_daemon_makes(tmp_path, bank_mod
     np.testing.assert_array_equal(restarted[:, 0], whole[:, 0])
     assert np.max(np.abs(restarted[:, 4] - whole[:, 4])) <= TOLERANCE * float(np.std(whole[:, 4]))
     assert not (restarted[:, 6].astype(int) & WARMING).any()
+
+
+@pytest.mark.parametrize("kind", ["symlink to /dev/zero", "1 GB"])
+def test_the_real_daemon_given_a_hostile_state_file_warns_once_and_starts_cold(tmp_path, bank_model, kind):
+    state = tmp_path / "fog0-thermal.json"
+    if kind == "1 GB":
+        with open(state, "wb") as big:
+            big.truncate(1 << 30)
+    else:
+        state.symlink_to("/dev/zero")
+    run = ramp_run(600.0, soak_s=0.0)  # on a ramp from the start: WARMING throughout
+    out = tmp_path / "out.csv"
+    port = Pty()
+    try:
+        fogd = start(tmp_path / "fogd", port, "--model", str(bank_model), "--state-file", str(state), "--out", str(out))
+        try:
+            stream(port, fogd, out, run, slice(None))
+            assert fogd.terminate()[0] == 0, fogd.stderr
+        finally:
+            fogd.kill()
+    finally:
+        port.close()
+    thermal_lines = [line for line in fogd.stderr.splitlines() if line.startswith("fogd.thermal:")]
+    assert len(thermal_lines) == 1 and "ignored" in thermal_lines[0] and "cold start" in thermal_lines[0], fogd.stderr
+    assert "Traceback" not in fogd.stderr
+    assert (rows_of(out)[:, 6].astype(int) & WARMING).all()
+    assert os.path.isfile(state) and not os.path.islink(state)  # replaced at stop by the daemon's own history
