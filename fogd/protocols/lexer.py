@@ -32,8 +32,10 @@ class LexerCounters:
     garbage_bytes: int = 0
     frame_bytes: int = 0  # bytes inside accepted frames: bytes fed = frame_bytes + garbage_bytes + buffered
     seq_gaps: int = 0  # jumps in a sequence counter
-    frames_missing: int = 0  # frames lost in those jumps (modulo the counter's wrap: 128 for KVH)
-    seq_repeats: int = 0  # a sequence number equal to the previous one (KVH's 7-bit counter: also 128 frames lost)
+    # frames lost in those jumps, modulo the counter's wrap: KVH's counter has 7 bits, so a loss of 128 frames
+    # in a row counts nothing and a loss of 127 (or 255, ...) reads as a repeat; it cannot tell them apart
+    frames_missing: int = 0
+    seq_repeats: int = 0  # a sequence number equal to the previous one (on KVH, also a loss of 127 frames)
     frames_repeated: int = 0  # copies of the frame before (fogd: its sequence number, ascii: its time), dropped
     time_backwards: int = 0  # frames whose device time is earlier than the frame's before (flagged, kept)
     invalid_axes: int = 0  # present axes marked invalid by a status bit or carrying NaN/Inf
