@@ -10,7 +10,7 @@ multiple of the noise floor (the same run with its true thermal error removed): 
 column is the share of the held-out samples that the domain guard sent to its linear fallback.
 
     python tools/accuracy_table.py            # every table (PSO 60 x 100; about an hour on 2 cores)
-    python tools/accuracy_table.py --quick --schemes linear,default --markdown docs/results/accuracy.md   # the page
+    python tools/accuracy_table.py --quick --markdown docs/results/accuracy.md   # docs/results/accuracy.md
     python tools/accuracy_table.py --quick    # PSO 20 x 20 (and 10 x 10 inside auto), about 15 minutes
     python tools/accuracy_table.py --quick --hysteresis-dph 0   # the gyro without its play hysteresis
     python tools/accuracy_table.py --quick --imu --sensor fine   # a three-axis IMU: one table per channel
