@@ -169,10 +169,10 @@ def test_the_demo_runs_and_says_what_its_columns_mean(scratch):
     demo = SETUP_DEMO.split(" && ")[-1]
     result = run_block(f"{demo} --duration-s 6", scratch, timeout_s=60)
     assert result.returncode == 0, result.stderr
-    assert result.stderr.count("columns: rate = ") == 1
-    lines = [line for line in result.stderr.splitlines() if line.startswith("rate ")]
+    assert result.stderr.count("drift = the gyro's rate averaged over the last 100 s") == 1
+    lines = [line for line in result.stderr.splitlines() if line.startswith("drift raw ")]
     assert lines and "\r" not in result.stderr and "\x1b" not in result.stderr  # stderr is a pipe: plain lines
-    temps = [float(re.search(r" T +(-?[\d.]+) C ", line).group(1)) for line in lines]
+    temps = [float(re.search(r"\| T +(-?[\d.]+) C ", line).group(1)) for line in lines]
     assert max(temps) > 0.0, result.stderr  # the chamber is already warming the gyro from 0 C
 
 

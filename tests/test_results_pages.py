@@ -16,6 +16,8 @@ sys.path.insert(0, str(ROOT / "tools"))
 import accuracy_table  # noqa: E402
 import bench_common  # noqa: E402
 
+from fogd.errors import OutputError  # noqa: E402
+
 
 def test_the_header_names_the_command_the_commit_and_the_machine():
     header = bench_common.results_header("Accuracy", ["python", "tools/accuracy_table.py", "--quick"], "seed 1")
@@ -43,7 +45,7 @@ class _FailingBody(str):
 def test_a_failed_write_leaves_the_old_page(tmp_path):
     page = tmp_path / "performance.md"
     bench_common.write_results_page(page, "# old\n", "old figures")
-    with pytest.raises(OSError):
+    with pytest.raises(OutputError, match="No space left on device"):
         bench_common.write_results_page(page, "# new\n", _FailingBody("new figures"))
     assert page.read_text() == "# old\n\nold figures\n"
     assert os.listdir(tmp_path) == ["performance.md"]

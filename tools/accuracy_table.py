@@ -376,7 +376,7 @@ def main() -> None:
         tables(args)
     try:
         write_results_page(args.markdown, header, page_body(printed.getvalue()))
-    except OSError as error:
+    except (OSError, FogdError) as error:
         raise SystemExit(f"accuracy_table: cannot write {args.markdown}: {error}") from None
     print(f"accuracy_table: wrote {args.markdown}", file=sys.stderr)
 

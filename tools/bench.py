@@ -37,6 +37,7 @@ def main(argv: list[str] | None = None) -> int:
         return run_all(args, [])
     sys.path.insert(0, str(HERE))
     from bench_common import results_header, write_results_page
+    from fogd.errors import FogdError
 
     header = results_header("Performance", ["python", "tools/bench.py", *(argv if argv is not None else sys.argv[1:])],
                             ("--quick: tiny sizes, a smoke test; " if args.quick else "") + "benchmarks " + ", ".join(args.only))
@@ -44,7 +45,7 @@ def main(argv: list[str] | None = None) -> int:
     code = run_all(args, body)
     try:
         write_results_page(args.markdown, header, PAGE_INTRO + "".join(body))
-    except OSError as error:
+    except (OSError, FogdError) as error:
         print(f"bench: cannot write {args.markdown}: {error}", file=sys.stderr)
         return 1
     print(f"bench: wrote {args.markdown}", file=sys.stderr)

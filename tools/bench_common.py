@@ -151,7 +151,8 @@ def results_header(title: str, command: list[str], settings: str = "") -> str:
 
 def write_results_page(path: str | os.PathLike[str], header: str, body: str) -> None:
     """`header` (results_header's) then `body`, replacing `path` whole (temporary file and rename: a failed
-    write leaves the old page as it was)."""
+    write leaves the old page as it was); fogd.errors.OutputError when it cannot be written."""
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)  # docs/results/ in a fresh checkout
     with replaced(os.fspath(path)) as stream:
         stream.write(header + "\n" + spaced_tables(body).rstrip() + "\n")
 
