@@ -149,15 +149,13 @@ def test_every_block_is_run_or_skipped_for_a_reason_and_calls_the_venvs_tools():
 
 
 def test_pages_link_to_pages_that_exist():
-    """Every relative markdown link in the README and docs/ names a file that is there (the thermal-state page
-    is another helper's: it arrives with its branch)."""
-    pending = {ROOT / "docs" / "reference" / "thermal-state.md"}
+    """Every relative markdown link in the README and docs/ names a file that is there."""
     for page in PAGES:
         for target in re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", page.read_text()):
             if "://" in target:
                 continue
             path = (page.parent / target).resolve()
-            assert path.exists() or path in pending, f"{page.relative_to(ROOT)} links to {target}, which is not there"
+            assert path.exists(), f"{page.relative_to(ROOT)} links to {target}, which is not there"
 
 
 def test_set_up_lines_are_what_ci_runs():
