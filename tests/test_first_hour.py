@@ -72,7 +72,7 @@ def test_the_default_stdout_is_refused_off_a_terminal_and_the_journal_always(tmp
     assert into_journal.returncode == 78 and "stdout is the journal" in into_journal.stderr
     assert (tmp_path / "journal").read_bytes() == b""
     assert run(*args, "--out", "-", cwd=tmp_path).returncode == 0  # a pipe, asked for: a consumer downstream
-    master, slave = os.openpty()  # a terminal: stdout by default, as the README's table says
+    master, slave = os.openpty()  # a terminal: stdout by default, as docs/reference/commands.md's table says
     try:
         on_terminal = subprocess.run([str(BIN / "fogd"), *args[1:]], stdout=slave, stderr=subprocess.PIPE,
                                      text=True, timeout=30, cwd=tmp_path)  # fmt: skip

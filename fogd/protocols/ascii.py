@@ -1,5 +1,5 @@
 """Line formats for humans and scripts (protocol `ascii`): KVH DSP-3000 output lines and fogd's own
-comma-separated lines for rate, temperature, both, and compensated output (grammar in docs/fogd-frames.md).
+comma-separated lines for rate, temperature, both, and compensated output (grammar in docs/reference/wire-formats.md).
 
 Both are single-axis: the rate is the z axis (index 2), x and y are absent. A line that does not parse is
 rejected whole and counted as `bad_line`; blank lines are skipped as garbage.

@@ -24,7 +24,7 @@ MAX_T_S = 2.0**53 / 1e6  # device times beyond this (285 years in us) are no clo
 
 @dataclass(slots=True)
 class Frame:
-    """One decoded frame; `kind` says which fields carry data (see docs/fogd-frames.md).
+    """One decoded frame; `kind` says which fields carry data (see docs/reference/wire-formats.md).
 
     kind 'imu': rate and temperature together (KVH A/B); 'rate': rate only; 'temp': temperature only;
     'comp': fogd's compensated output (adds temp_rate_cps, comp_dph, rate_comp_dph, flags);

@@ -4,7 +4,7 @@ output for a multi-channel model: every channel's reading, compensation, compens
 with a sync word, type, length, per-type sequence counter, device timestamp and CRC-16.
 
 Rate and temperature frames carry their own timestamps and counters so a rig with a separate FOG and
-temperature sensor can feed fogd at different rates, over one link or two. Byte tables: docs/fogd-frames.md.
+temperature sensor can feed fogd at different rates, over one link or two. Byte tables: docs/reference/wire-formats.md.
 Everything is big-endian, like the KVH frames; floats are IEEE-754 single.
 """
 
