@@ -216,7 +216,7 @@ def test_stuck_consumer_is_counted_and_never_blocks_the_caller(tmp_path):
     started = time.monotonic()
     for _ in range(200):
         writer.submit(Chunk(b"\x55" * 36_000, list(range(36, 36_001, 36))))
-    assert time.monotonic() - started < 0.5
+    assert time.monotonic() - started < 200 * writer.write_timeout_s / 2  # blocking, each would wait out a timeout
     writer.close(1.0)
     counters = writer.counters
     assert counters.frames_dropped_full > 0 and counters.frames_dropped_timeout > 0
