@@ -21,7 +21,7 @@ from fogd.calibration.replay import (
 from fogd.calibration.tables import error_table
 from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, run
 from fogd.core import modelfile
-from fogd.core.atomic import refuse_inputs
+from fogd.core.atomic import check_output
 from fogd.core.channels import ChannelModels, output_columns
 from fogd.core.columns import BLOCK_S, OUTPUT_FORMATS, SINGLE_CHANNEL, channel_unit
 from fogd.core.flags import Flag
@@ -66,8 +66,8 @@ def body(argv: Sequence[str] | None) -> int:
     if args.allan_plot and os.path.isdir(args.allan_plot):
         raise UsageError(f"--allan-plot {args.allan_plot}: a directory; give a file name such as allan.png")
     for output in (args.output, args.allan_plot):
-        if output and output != "-":
-            refuse_inputs(output, [args.model, args.run])
+        if output:
+            check_output(output, [args.model, args.run])  # before the replay, not after it
     models = load_model(args.model, args.run)
     recorded = read_run(args.run)
     if models.version == modelfile.CHANNELS_VERSION:
