@@ -275,3 +275,31 @@ def test_process_row_goes_on_with_a_bank_handed_over():
         compensator._held_temp_c = running.compensators[channel]._held_temp_c
     for values, usable, temp in rows[300:320]:
         assert repr(new.process_row(values, usable, temp, False)) == repr(same.process_row(values, usable, temp, False))
+
+
+@pytest.mark.parametrize("alone", [None, "rate_y_dph"])
+def test_a_channel_whose_rate_is_invalid_shows_no_compensation_applied(alone):
+    """Issue 35 item 6, on every path of the channel compensator (batch, few, one row, one channel alone)."""
+    run = imu_run(1, [], [3, 40, 90])
+    chosen = models() if alone is None else {alone: models()[alone]}
+    names = list(chosen)
+    usable = {name: (np.arange(ROWS) % 97 != 5).tolist() for name in names}
+    whole = ChannelCompensator(chosen, RATE_HZ).process(
+        {n: run.channels[n] for n in names}, run.temp_c, rate_valid={n: np.array(usable[n]) for n in names})
+    few = ChannelCompensator(chosen, RATE_HZ).process_few({n: run.channels[n][:200].tolist() for n in names},
+                                                         run.temp_c[:200].tolist(), {n: usable[n][:200] for n in names},
+                                                         [False] * 200)  # fmt: skip
+    by_row = ChannelCompensator(chosen, RATE_HZ)
+    rows = [by_row.process_row([run.channels[n][i] for n in names], [usable[n][i] for n in names], run.temp_c[i], False)
+            for i in range(200)]  # fmt: skip
+    checked = 0
+    for k, name in enumerate(names):
+        row_comps = [row[2][k] for row in rows]
+        row_flags = [row[4][k] for row in rows]
+        for comp, flags in ((whole[name].comp_dph, whole[name].flags), (few[name].comp_dph, few[name].flags),
+                            (row_comps, row_flags)):  # fmt: skip
+            invalid = (np.asarray(flags) & Flag.RATE_INVALID) != 0
+            assert np.all(np.asarray(comp)[invalid] == 0.0), name
+            assert np.any(np.asarray(comp)[~invalid] != 0.0), name
+            checked += int(invalid.sum())
+    assert checked > 0

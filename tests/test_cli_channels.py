@@ -212,11 +212,10 @@ def test_manifest_through_joblibs_dask_backend_on_a_local_cluster(runs, tmp_path
     assert modelfile.load(tmp_path / "models" / "gyro-2.json").method == "pso-svr"
 
 
-def test_the_readmes_three_axis_block_runs_as_written(tmp_path):
-    """The README's "Calibrating a three-axis IMU" commands, with shorter runs (2 Hz) and a tiny swarm."""
-    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    section = text[text.index("## Calibrating a three-axis IMU"):]
-    block = re.search(r"^```shell\n(.*?)^```", section, flags=re.S | re.M).group(1)
+def test_the_imu_guides_three_axis_block_runs_as_written(tmp_path):
+    """docs/guides/imu.md's calibration commands, with shorter runs (2 Hz) and a tiny swarm."""
+    text = (Path(__file__).resolve().parents[1] / "docs" / "guides" / "imu.md").read_text()
+    block = re.search(r"^```shell\n(.*?)^```", text, flags=re.S | re.M).group(1)
     extra = {".venv/bin/fogd-sim": " --rate-hz 2", ".venv/bin/fogd-train": " --particles 4 --iterations 2 -q"}
     lines = []
     for line in block.splitlines():

@@ -136,3 +136,18 @@ def test_stale_temperature_is_flagged():
     stale[4:] = True
     out = Compensator(linear_model(), RATE_HZ).process(np.zeros(10), np.full(10, 20.0), temp_stale=stale)
     assert np.array_equal((out.flags & Flag.TEMP_STALE) != 0, stale)
+
+
+def test_an_invalid_rate_shows_no_compensation_applied():
+    """Issue 35 item 6: comp_dph is what was subtracted, so 0 where the rate passed through uncompensated."""
+    rate = np.ones(100)
+    rate[[5, 70]] = [np.nan, np.inf]
+    valid = np.ones(100, dtype=bool)
+    valid[80] = False
+    temp = np.full(100, 20.0)  # comp 0.2 deg/h everywhere the rate is valid
+    batch = Compensator(linear_model(), RATE_HZ).process(rate, temp, rate_valid=valid)
+    few = Compensator(linear_model(), RATE_HZ).process_few(rate.tolist(), temp.tolist(), valid.tolist(), [False] * 100)
+    for out in (batch, few):
+        comp = np.asarray(out.comp_dph)
+        np.testing.assert_array_equal(comp[[5, 70, 80]], 0.0)
+        np.testing.assert_allclose(np.delete(comp, [5, 70, 80]), 0.2)

@@ -230,12 +230,13 @@ def test_recorded_run_through_emulator_and_fogd_equals_replay(tmp_path, model_pa
     assert counters["lexer"]["bad_crc"] == counters["lexer"]["truncated"] == counters["lexer"]["bad_line"] == 0
 
 
-def expected_from_ledger(ledger: list[dict]) -> dict[str, np.ndarray]:
+def expected_from_ledger(ledger: list[dict], repeats_dropped: bool = False) -> dict[str, np.ndarray]:
     """The samples fogd should compensate: every valid frame that was sent, in order, with the temperature
-    held from the newest valid frame that carried one."""
+    held from the newest valid frame that carried one (`repeats_dropped`: not the copies a fogd or ascii
+    sender repeated)."""
     rates, temps, held = [], [], np.nan
     for line in ledger:
-        if not (line["sent"] and line["valid"]):
+        if not (line["sent"] and line["valid"]) or (repeats_dropped and line["faults"] == ["repeat"]):
             continue
         if line["kind"] in ("imu", "temp"):
             held = np.nan if line["temp_c"] is None else line["temp_c"]
@@ -264,7 +265,7 @@ def test_emulator_faults_are_counted_and_no_valid_frame_is_lost(tmp_path, model_
         fogd = start_fogd(tmp_path, emu.path, model_path, "--protocol", protocol, "--out-format", "csv", "--out", str(out))
         try:
             ledger = emu.finish()
-            expected = expected_from_ledger(ledger)
+            expected = expected_from_ledger(ledger, repeats_dropped=protocol != "kvh-a")
             wait_for_rows(out, len(expected["rate_dph"]) + 1)
             assert fogd.terminate()[0] == 0
         finally:
@@ -279,7 +280,9 @@ def test_emulator_faults_are_counted_and_no_valid_frame_is_lost(tmp_path, model_
     sent = [line for line in ledger if line["sent"]]
     corrupted = [line for line in sent if not line["valid"]]
     lexer = fogd.counters()["lexer"]
-    assert lexer["frames_ok"] == len(sent) - len(corrupted)
+    repeats = sum(1 for line in sent if line["faults"] == ["repeat"] and line["valid"])
+    assert lexer["frames_ok"] + lexer["frames_repeated"] == len(sent) - len(corrupted)
+    assert lexer["frames_repeated"] == (0 if protocol == "kvh-a" else repeats)  # copies dropped, counted
     assert lexer["bad_crc"] + lexer["truncated"] + lexer["bad_line"] == len(corrupted) + (
         sum(1 for line in sent if line["garbage_bytes"]) if protocol == "ascii" else 0
     )

@@ -74,7 +74,7 @@ def test_the_default_stdout_is_refused_off_a_terminal_and_the_journal_always(tmp
     assert into_journal.returncode == 78 and "stdout is the journal" in into_journal.stderr
     assert (tmp_path / "journal").read_bytes() == b""
     assert run(*args, "--out", "-", cwd=tmp_path).returncode == 0  # a pipe, asked for: a consumer downstream
-    master, slave = os.openpty()  # a terminal: stdout by default, as the README's table says
+    master, slave = os.openpty()  # a terminal: stdout by default, as docs/reference/commands.md's table says
     try:
         on_terminal = subprocess.run([str(BIN / "fogd"), *args[1:]], stdout=slave, stderr=subprocess.PIPE,
                                      text=True, timeout=30, cwd=tmp_path)  # fmt: skip
@@ -191,7 +191,7 @@ def test_fogd_top_in_tmux_shows_the_running_daemon(tmp_path):
         assert any(line.startswith("latency  last ") and " ms" in line for line in lines), screen
         spark = next(line for line in lines if line.startswith("T        "))
         assert re.search(r"[▁▂▃▄▅▆▇█]{5,}", spark) and re.search(r"\(-?[\d.]+ \.\. -?[\d.]+ C\)", spark), screen
-        assert re.search(r"^flags    [.CWSROT]{5,}", screen, flags=re.M), screen
+        assert re.search(r"^flags    [.CWSROTH]{5,}", screen, flags=re.M), screen  # H: WARMING, the demo starts cold
         assert "\x1b" not in screen and "^[" not in screen  # what a person sees: no stray escapes
         assert stop(daemon, lambda: "") == 0
         deadline = time.monotonic() + 60  # fogd-top looks every second; this bounds a top that never notices

@@ -240,3 +240,38 @@ def test_lexer_configuration_errors():
         Lexer([])
     with pytest.raises(ConfigError, match="ascii"):
         Lexer([KVH, AsciiProtocol()])
+
+
+def fogd_rate(seq: int, t_s: float) -> bytes:
+    return FOGD.encode(Frame("fogd", "rate", "rate", seq, t_s, (0.0, 0.0, 1.0 + seq), ALL, ALL))
+
+
+def test_a_repeated_fogd_frame_is_dropped_and_counted_once():
+    """Issue 35 item 4: `seq_repeats` counted the copy, then both went out."""
+    lexer = Lexer(FOGD)
+    frames = lexer.feed(fogd_rate(1, 0.001) + fogd_rate(2, 0.002) + fogd_rate(2, 0.002) + fogd_rate(3, 0.003))
+    assert [frame.seq for frame in frames] == [1, 2, 3]
+    counters = lexer.counters
+    assert (counters.frames_ok, counters.seq_repeats, counters.frames_repeated, counters.seq_gaps) == (3, 1, 1, 0)
+
+
+def test_a_repeated_ascii_line_is_dropped_and_counted():
+    lexer = Lexer(AsciiProtocol())
+    frames = lexer.feed(b"I,0.001,1.5,20.0\nI,0.002,1.6,20.0\nI,0.002,1.6,20.0\nI,0.003,1.7,20.0\n")
+    assert [frame.t_s for frame in frames] == [0.001, 0.002, 0.003]
+    assert (lexer.counters.frames_ok, lexer.counters.frames_repeated) == (3, 1)
+
+
+def test_a_kvh_repeat_is_kept_since_its_7_bit_counter_cannot_tell_it_from_128_lost_frames():
+    lexer = Lexer(KVH)
+    frames = lexer.feed(kvh_frame(5) + kvh_frame(5) + kvh_frame(6))
+    assert len(frames) == 3 and lexer.counters.seq_repeats == 1 and lexer.counters.frames_repeated == 0
+
+
+def test_a_device_time_that_goes_back_is_flagged_and_counted_and_the_frame_kept():
+    from fogd.protocols.base import TIME_BACKWARDS
+
+    lexer = Lexer(FOGD)
+    frames = lexer.feed(b"".join(fogd_rate(seq, t_s) for seq, t_s in ((1, 1.0), (2, 2.0), (3, 1.5), (4, 2.5))))
+    assert [bool(frame.flags & TIME_BACKWARDS) for frame in frames] == [False, False, True, False]
+    assert lexer.counters.time_backwards == 1

@@ -210,7 +210,9 @@ def test_file_sink_writes_everything(tmp_path):
 
 
 def test_stuck_consumer_is_counted_and_never_blocks_the_caller(tmp_path):
-    sink = open_sink(f"pty:{tmp_path / 'nobody-reads'}", 921600)
+    link = tmp_path / "never-reads"
+    sink = open_sink(f"pty:{link}", 921600)
+    stuck = os.open(link, os.O_RDONLY | os.O_NOCTTY | os.O_NONBLOCK)  # holds the pty open, reads nothing
     writer = Writer(sink, queue_chunks=4, write_timeout_s=0.05)
     writer.start()
     started = time.monotonic()
@@ -218,6 +220,7 @@ def test_stuck_consumer_is_counted_and_never_blocks_the_caller(tmp_path):
         writer.submit(Chunk(b"\x55" * 36_000, list(range(36, 36_001, 36))))
     assert time.monotonic() - started < 200 * writer.write_timeout_s / 2  # blocking, each would wait out a timeout
     writer.close(1.0)
+    os.close(stuck)
     counters = writer.counters
     assert counters.frames_dropped_full > 0 and counters.frames_dropped_timeout > 0
     total = (

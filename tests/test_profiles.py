@@ -111,7 +111,8 @@ def _fastest_pace_cph(profile: Profile) -> float:
 
 @pytest.mark.parametrize("name, pace_cph, soaks_s", [("cal-soaks", 20.0, 1800.0 + 3 * 5400.0), ("cal-fast-cycle", 60.0, 3 * 1800.0)])
 def test_the_guides_extra_calibration_runs_keep_the_held_out_fast_ramp_the_fastest(name, pace_cph, soaks_s):
-    """The README's calibration programme adds these two; the accuracy table's fast-ramp must stay faster than any."""
+    """The KVH guide's programme (docs/guides/kvh-chamber.md) adds these two; the accuracy table's fast-ramp must
+    stay faster than any."""
     profile = profiles.builtin(name)
     assert _fastest_pace_cph(profile) == pytest.approx(pace_cph)
     assert _fastest_pace_cph(profile) < _fastest_pace_cph(profiles.builtin("fast-ramp")) == pytest.approx(80.0)

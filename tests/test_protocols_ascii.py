@@ -113,3 +113,20 @@ def test_dsp3000_round_trip_to_six_decimals(rate_dps, valid):
     frame = ASCII.decode(line)
     assert frame.rate_dph[2] == pytest.approx(rate_dps * 3600.0, abs=0.5e-6 * 3600.0 * 1.01)
     assert frame.axis_valid[2] == valid
+
+
+def test_reencode_dsp3000_writes_the_digits_a_small_compensation_needs():
+    """Issue 35 item 5: 0.02340 deg/h removed must not come out as 0.02520 (six decimals of deg/s)."""
+    frame = ASCII.decode(DSP3000_LINE)
+    line = ASCII.reencode(frame, (0.0, 0.0, frame.rate_dph[2] - 0.0234))
+    assert ASCII.decode(line).rate_dph[2] - frame.rate_dph[2] == pytest.approx(-0.0234, abs=1e-9)
+    assert line.endswith(b"   1\r\n")
+
+
+@given(st.integers(-100_000_000, 100_000_000), st.floats(-100.0, 100.0), st.sampled_from(["rate", "delta"]))
+def test_reencoded_dsp3000_minus_raw_is_the_compensation(micro_units, comp_dph, rotfmt):
+    protocol = AsciiProtocol(rotfmt=rotfmt, rate_hz=100.0)
+    units = micro_units / 1e6 if rotfmt == "rate" else micro_units / 1e8  # up to 100 deg/s either way
+    frame = protocol.decode(f"{units:15.6f}   1\r\n".encode())
+    line = protocol.reencode(frame, (0.0, 0.0, frame.rate_dph[2] - comp_dph))
+    assert protocol.decode(line).rate_dph[2] - frame.rate_dph[2] == pytest.approx(-comp_dph, abs=1e-9)

@@ -40,7 +40,7 @@ def test_crc16_matches_bitwise_reference(data):
 
 
 def test_rate_frame_built_from_the_documented_byte_table():
-    # docs/fogd-frames.md: F0 0D, type 01, length 29, seq, t_us, 3 x f32 deg/h, axes byte, CRC-16.
+    # docs/reference/wire-formats.md: F0 0D, type 01, length 29, seq, t_us, 3 x f32 deg/h, axes byte, CRC-16.
     body = struct.pack(">BBBBHQfffB", 0xF0, 0x0D, 0x01, 29, 513, 2_500_000, 0.0, -1.5, 12.25, 0x44)
     frame = FOGD.decode(with_crc(body))
     assert (frame.kind, frame.message, frame.seq, frame.t_s) == ("rate", "rate", 513, 2.5)

@@ -13,7 +13,7 @@ from fogd.protocols import Frame, FrameError
 from fogd.protocols.crc import crc32_mpeg2, crc32_mpeg2_ok
 from fogd.protocols.kvh import KvhProtocol, bit_reply
 
-# Both vectors and their decoded values are KVH's real captures, as listed in docs/fogd-frames.md.
+# Both vectors and their decoded values are KVH's real captures, as listed in docs/reference/wire-formats.md.
 VECTOR_1 = bytes.fromhex("FE81FF55 37A96A6E 38586C1F B75BF862 BF803E78 BB650D28 3B0A37AC 77 3D 0028 4BFA34D8")
 VECTOR_2 = bytes.fromhex("FE81FF55 B606D81E B6C4940F 36D95A83 3C61AD86 3BE5D086 3F7FDCD4 77 72 0026 C0F2D540")
 VECTORS = [

@@ -22,7 +22,7 @@ from fogd.protocols.kvh import (
 )
 from fogd.protocols.lexer import Lexer
 
-# KVH's two real captures and the accelerations docs/fogd-frames.md lists for them (g).
+# KVH's two real captures and the accelerations docs/reference/wire-formats.md lists for them (g).
 VECTOR_1 = bytes.fromhex("FE81FF55 37A96A6E 38586C1F B75BF862 BF803E78 BB650D28 3B0A37AC 77 3D 0028 4BFA34D8")
 VECTOR_2 = bytes.fromhex("FE81FF55 B606D81E B6C4940F 36D95A83 3C61AD86 3BE5D086 3F7FDCD4 77 72 0026 C0F2D540")
 ACCELS = [(VECTOR_1, (-1.0019, -0.0034950, 0.0021090)), (VECTOR_2, (0.013774, 0.0070134, 0.99946))]

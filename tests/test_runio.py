@@ -365,3 +365,14 @@ def test_a_single_axis_run_is_its_own_one_channel(tmp_path):
 def test_an_imu_run_without_temperature_names_what_a_run_needs(tmp_path):
     message = input_error(write_text(tmp_path, "t_s,rate_x_dph,accel_z_g\n0,1,1\n0.1,1,1\n"))
     assert "missing column(s) temp_c" in message and "accel_z_g" in message
+
+
+@pytest.mark.parametrize("rate_hz, start_s", [(5.0, 7200.0), (10.0, 0.0), (200.0, 1.0e5), (1000.0, 3.0)])
+def test_a_nominal_rate_written_with_few_decimals_reads_back_exactly(tmp_path, rate_hz, start_s):
+    # t_s as fogd-sim and fogd-record write it (%.3f or %.6f): the steps carry rounding of 1e-13 or so, and a
+    # rate of 5.000000000001 Hz puts round(0.5 s * rate) at 3 samples where the daemon at --rate-hz 5 takes 2
+    decimals = 3 if rate_hz <= 1000 / 8 else 6
+    times = start_s + np.arange(400) / rate_hz
+    body = "".join(f"{t:.{decimals}f},0.1,20.0\n" for t in times)
+    run = read_run(write_text(tmp_path, "t_s,rate_dph,temp_c\n" + body))
+    assert run.rate_hz == rate_hz

@@ -62,6 +62,14 @@ def test_documentation_named_by_the_units_is_installed(staged, unit):
         assert (staged / document.lstrip("/")).read_text() == (ROOT / "README.md").read_text()
 
 
+def test_the_pages_the_installed_readme_links_to_are_installed(staged):
+    doc = staged / "usr" / "share" / "doc" / "fogd"
+    links = re.findall(r"\]\((docs/[^)#\s]+)", (doc / "README.md").read_text())
+    assert "docs/guides/service.md" in links
+    for link in links:
+        assert (doc / link).read_text() == (ROOT / link).read_text(), link
+
+
 def test_an_existing_config_is_kept_and_bad_usage_is_64(tmp_path):
     (tmp_path / "etc" / "fogd").mkdir(parents=True)
     (tmp_path / "etc" / "fogd" / "fogd.yaml").write_text("port: /dev/fog0\n")
@@ -117,7 +125,7 @@ def test_a_model_installed_before_first_start_is_readable_by_the_dynamic_user(st
 def check_model_access(tmp_path: Path, staged: Path, mode: int) -> None:
     state = tmp_path / "var" / "lib" / "fogd"
     model = state / "model.json"
-    # the README's step, staged: install -D -m 0644 model.json /var/lib/fogd/model.json
+    # the service guide's step (docs/guides/service.md), staged: install -D -m 0644 model.json /var/lib/fogd/model.json
     subprocess.run(["install", "-D", "-m", "0644", str(DEMO_MODEL), str(model)], check=True, timeout=10)
     os.chmod(state, mode)
     os.chmod(tmp_path, 0o755)

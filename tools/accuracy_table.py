@@ -9,7 +9,8 @@ held-out runs through the daemon's compensator and prints the std of 100 s block
 multiple of the noise floor (the same run with its true thermal error removed): 1.00 is perfect. The fallback
 column is the share of the held-out samples that the domain guard sent to its linear fallback.
 
-    python tools/accuracy_table.py            # the README's tables (PSO 60 x 100; about an hour on 2 cores)
+    python tools/accuracy_table.py            # every table (PSO 60 x 100; about an hour on 2 cores)
+    python tools/accuracy_table.py --quick --markdown docs/results/accuracy.md   # docs/results/accuracy.md
     python tools/accuracy_table.py --quick    # PSO 20 x 20 (and 10 x 10 inside auto), about 15 minutes
     python tools/accuracy_table.py --quick --hysteresis-dph 0   # the gyro without its play hysteresis
     python tools/accuracy_table.py --quick --imu --sensor fine   # a three-axis IMU: one table per channel
@@ -25,12 +26,16 @@ own thermal error of the same coil), every channel is trained with fogd-train's 
 trains an IMU run (fogd.calibration.channels: the shared inputs, the channels in parallel over --jobs) and the
 held-out runs go through the channel compensator as fogd-replay does; one table per channel, accelerometers'
 noise floors in g.
+
+--markdown PATH also writes what is printed as a results page (docs/results/accuracy.md), replaced whole, under
+a header with the command, the date, the commit, the machine and what the run shortened.
 """
 
 from __future__ import annotations
 
 import argparse
 import hashlib
+import sys
 import time
 from dataclasses import fields
 
@@ -57,6 +62,8 @@ from fogd.core.runio import Run
 from fogd.errors import FogdError
 from fogd.simulation.profiles import Profile, resolve
 from fogd.simulation.simulator import SimParams, Simulation, params_for, simulate
+
+from bench_common import captured_stdout, results_header, write_results_page  # tools/, beside this file
 
 CALIBRATION = ("paper-train", "cooling", "cycle")
 HELD_OUT = ("paper-test", "cool-40-to-0", "fast-ramp", "soak-after-ramp", "fast-cycle")
@@ -265,6 +272,44 @@ def print_table(title: str, rows: dict[str, list], default_inputs: str | None = 
           + f" (worst {auto.max():.3f})")
 
 
+PAGE_INTRO = """\
+What matters is the drift a model leaves on temperature histories no calibration run had, as a multiple of the
+gyro's noise floor. The runs are simulated (`fogd-sim --noise navigation`, a gyro like the paper's), with a lumped
+and a diffusive fibre coil and two temperature sensors: a fine one (0.0625 C at 4 Hz) and a KVH's whole degrees
+(1 C at 1 Hz). Each scheme is trained as `fogd-train` trains it on three calibration runs (paper-train, heating
+-15 to 50 C; cooling, 50 to -10 C; cycle) and replayed through the daemon's compensator on five held-out runs with
+other seeds: paper-test (0 to 30 C), cool-40-to-0, fast-ramp (80 C/h, four times faster than any calibration
+ramp), soak-after-ramp and fast-cycle. Each cell is the std of 100 s block means after the first 600 s divided
+by the same for the run minus its true thermal error (the noise floor): **1.00 is perfect**. `fallback` is the
+largest share of samples the domain guard sent to its linear fallback. Why the default is what it is, and what
+limits it: [how it works](../how-it-works.md).
+"""
+
+
+def page_settings(args) -> str:
+    """What this run shortened or chose, in words, for the page's header."""
+    said = [f"PSO {'20 x 20 (--quick)' if args.quick else '60 x 100 (the paper)'}", f"seed {args.seed}",
+            f"{args.rate_hz:g} Hz", "schemes " + (", ".join(args.schemes) if args.schemes else "all")]
+    if args.thermal:
+        said.append("coils " + ", ".join(args.thermal))
+    if args.sensor:
+        said.append("sensors " + ", ".join(args.sensor))
+    return "; ".join(said)
+
+
+def page_body(printed: str) -> str:
+    """The printed tables as markdown: a section heading per coil and sensor, the fit times as a list."""
+    lines = []
+    for line in printed.splitlines():
+        if line.startswith("#   "):
+            lines.append(f"- fitted {line[4:]}")
+        elif line.startswith("# "):
+            lines.append(f"\n## {line[2:]}\n")
+        else:
+            lines.append(line)
+    return PAGE_INTRO + "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--rate-hz", type=float, default=10.0, help="simulated gyro rate, Hz (default 10)")
@@ -303,6 +348,8 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="PSO 20 x 20 instead of the paper's 60 x 100, 10 x 10 inside auto")
     parser.add_argument("--imu", action="store_true",
                         help="three-axis IMU runs: fogd-train's default on every gyro and accelerometer, one table per channel")
+    parser.add_argument("--markdown", metavar="PATH",
+                        help="also write the tables as a results page (e.g. docs/results/accuracy.md), replaced whole")
     args = parser.parse_args()
     unknown = sorted(set(args.schemes or ()) - set(SCHEME_KEYS.values()))
     if unknown:
@@ -320,6 +367,22 @@ def main() -> None:
         args.calibration = calibration_profiles(args) if args.calibration else None
     except FogdError as error:  # an unknown profile, or a file that is not a profile
         parser.error(str(error))
+    if not args.markdown:
+        tables(args)
+        return
+    header = results_header("Accuracy on runs not used for training", ["python", "tools/accuracy_table.py", *sys.argv[1:]],
+                            page_settings(args))  # before the run: its date and load are when it started
+    with captured_stdout() as printed:
+        tables(args)
+    try:
+        write_results_page(args.markdown, header, page_body(printed.getvalue()))
+    except (OSError, FogdError) as error:
+        raise SystemExit(f"accuracy_table: cannot write {args.markdown}: {error}") from None
+    print(f"accuracy_table: wrote {args.markdown}", file=sys.stderr)
+
+
+def tables(args) -> None:
+    """Every table the options ask for, printed."""
     for thermal in args.thermal or THERMALS:
         for sensor, (resolution_c, sensor_hz) in SENSORS.items():
             if args.sensor and sensor.split()[0] not in args.sensor:

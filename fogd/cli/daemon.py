@@ -39,6 +39,7 @@ from fogd.serving.reader import Reader
 from fogd.serving.ring import Ring
 from fogd.serving.sdnotify import Notifier
 from fogd.serving.serialio import PortOpener, open_port
+from fogd.serving.thermalstate import Thermal
 
 PROG = "fogd"
 DEMO_MODEL = demo_mode.MODEL
@@ -288,8 +289,12 @@ def serve(settings: dict[str, Any], protocol: protocols.Protocol | None, model, 
         notifier=notifier,
         reload=reloader(sources, settings) if sources is not None else None,
         stats_path=stats_path,
-        info={"instance": instance, "port": path, "protocol": protocol.name, "out": settings["out"]},
+        info={"instance": instance, "port": path, "protocol": protocol.name, "out": settings["out"],
+              "rate_source": rate_source(settings, sources)},
         placement=Placement(settings["cpu"]),
+        thermal=Thermal([as_models(model)[c] for c in channels.covered], settings["rate_hz"],
+                        path=config.state_path(settings["state_file"], instance), device=f"port {path}",
+                        warming=settings["warming"], tolerance_dph=settings["warming_tolerance_dph"]),
     )
     if settings["metrics_port"] is not None:
         from fogd.serving import prometheus
@@ -314,11 +319,32 @@ def serve(settings: dict[str, Any], protocol: protocols.Protocol | None, model, 
         settings["out"], settings["out_format"], f", stats {stats_path}" if stats_path else "",
     )  # fmt: skip
     log.info("model %s %s", model.name, channels.describe())
+    say_rate(protocol.name, settings["rate_hz"], rate_source(settings, sources))
     if on_daemon is not None:
         on_daemon(daemon)
     daemon.run()
     logging.getLogger("fogd.status").info("counters %s", json.dumps(daemon.counters_dict()))
     return 0
+
+
+def rate_source(settings: dict[str, Any], sources: Settings | None) -> str:
+    """Where rate_hz came from: the unit's own ?DR reply, the config (file or command line) or the default."""
+    if settings.get("query_settings"):
+        return "the unit's own ?DR reply"
+    if sources is None or sources.given("rate_hz"):
+        return "the config"
+    return "the default"
+
+
+def say_rate(protocol: str, rate_hz: float, source: str) -> None:
+    """At start: which rate the estimator assumes and why (frames without time cannot be measured)."""
+    if protocol == "kvh-a" and source == "the default":
+        log.warning("kvh-a frames carry no time: assuming %g Hz, the default rate_hz; set rate_hz to the unit's "
+                    "data rate (or query_settings: true to read it from the unit)", rate_hz)  # fmt: skip
+    elif protocol == "kvh-a":
+        log.info("kvh-a frames carry no time: %g Hz from %s", rate_hz, source)
+    else:
+        log.info("rate: %g Hz (%s) until measured from the frames' own time (frames without one keep it)", rate_hz, source)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -27,8 +27,10 @@ ASCII_BARS = "_.-:=+*#"
 HOME_CLEAR = "\x1b[H\x1b[2J"
 # one letter per flag in the flags row, the most serious set bit winning
 FLAG_LETTERS = {Flag.RATE_INVALID: "R", Flag.TEMP_INVALID: "T", Flag.OUT_OF_DOMAIN: "O", Flag.TEMP_STALE: "S",
-                Flag.CLAMPED: "C", Flag.WARMUP: "W"}  # fmt: skip
-LEXER_SHOWN = ("bad_crc", "truncated", "bad_line", "garbage_bytes", "seq_gaps", "frames_missing")
+                Flag.CLAMPED: "C", Flag.WARMUP: "W", Flag.WARMING: "H",
+                Flag.TIME_BACKWARDS: "B"}  # fmt: skip (H: no thermal history; B: the device's clock went back)
+LEXER_SHOWN = ("bad_crc", "truncated", "bad_line", "garbage_bytes", "seq_gaps", "frames_missing", "frames_repeated",
+               "time_backwards")
 
 
 def parser() -> ArgumentParser:
@@ -127,6 +129,15 @@ def channel_lines(snapshot: dict[str, Any]) -> list[str]:
     return lines
 
 
+def _rate_text(rate: Any) -> str:
+    """'200 Hz (the frames' clock; measured 200 Hz, rate_hz 1000 Hz)', or '-' from a daemon that does not say."""
+    if not isinstance(rate, dict):
+        return "-"
+    measured = rate.get("measured_hz")
+    return (f"{_number(rate.get('in_use_hz'), 'g', 'Hz')} ({rate.get('source', '?')}; measured "
+            f"{_number(measured, 'g', 'Hz') if measured is not None else '-'}, rate_hz {_number(rate.get('configured_hz'), 'g', 'Hz')})")  # fmt: skip
+
+
 def render(snapshot: dict[str, Any], path: str, *, width: int = 60, bars: str = UNICODE_BARS) -> list[str]:
     """The screen for one snapshot, as lines of plain text."""
     live = statsfile.is_live(snapshot)
@@ -140,7 +151,8 @@ def render(snapshot: dict[str, Any], path: str, *, width: int = 60, bars: str = 
     shares = snapshot.get("domain_shares") or {}
     history = snapshot.get("history") or {}
     frames_in = " ".join(f"{kind} {count}" for kind, count in (reader.get("frames_in") or {}).items() if count) or "0"
-    dropped_out = sum(writer.get(key, 0) for key in ("frames_dropped_full", "frames_dropped_timeout", "frames_dropped_error"))
+    dropped_out = sum(writer.get(key, 0) for key in ("frames_dropped_full", "frames_dropped_timeout", "frames_dropped_error",
+                                                     "frames_dropped_no_reader"))  # fmt: skip
     lexer_text = "  ".join(f"{name.replace('_', ' ')} {lexer.get(name, 0)}" for name in LEXER_SHOWN)
 
     def ms(value: Any) -> str:
@@ -162,6 +174,7 @@ def render(snapshot: dict[str, Any], path: str, *, width: int = 60, bars: str = 
         f"port     {snapshot.get('port', '?')} ({snapshot.get('protocol', '?')}) {connected}   "
         f"out {snapshot.get('out', '?')}",
         f"model    {model.get('name', '?')} ({model.get('method', '?')})",
+        f"rate     {_rate_text(snapshot.get('rate'))}",
         f"frames   in {frames_in}  out {writer.get('frames_written', 0)}  dropped out {dropped_out}  "
         f"ring overruns {counters.get('ring_overruns', 0)}  reconnects {reader.get('reconnects', 0)}",
         f"lexer    {lexer_text}",
@@ -170,6 +183,10 @@ def render(snapshot: dict[str, Any], path: str, *, width: int = 60, bars: str = 
         f"now      T {_number(latest.get('temp_c'), '.2f', 'C')}  dT/dt {_number(latest.get('temp_rate_cps'), '+.5f', 'C/s')}  "
         f"{comp_now}",
     ]
+    missing = snapshot.get("missing_channels") or []
+    if missing:
+        lines.append(f"MISSING  {', '.join(missing)}: the frames carry none ({loop.get('samples_missing_channel', 0)} "
+                     "samples passed through uncompensated)")  # fmt: skip
     if several:
         lines += ["", *channel_lines(snapshot)]
     lines += ["", f"last minute, one point a second ({len(history.get('temp_c') or [])} points), oldest on the left:"]

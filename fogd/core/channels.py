@@ -41,6 +41,7 @@ from fogd.core.compensator import (
 )
 from fogd.core.estimator import SCALAR_CHUNK
 from fogd.core.frozen import FrozenModel, StackedModels
+from fogd.core.history import TempHistory
 from fogd.core.inputs import InputBank, InputSpec
 
 
@@ -218,6 +219,7 @@ class _Stack:
         own = (flags[:, None] | np.where(clamped, _CLAMPED, 0) | np.where(outside, _OUT_OF_DOMAIN, 0)
                | np.where(rate_ok, 0, _RATE_INVALID)).astype(np.uint16)  # fmt: skip
         rate_comp_dph = np.where(rate_ok, rate_dph - comps, rate_dph)
+        comps = np.where(rate_ok, comps, 0.0)  # what was subtracted: nothing where the rate is invalid
         own, comps, rate_comp_dph = own.T.copy(), comps.T.copy(), rate_comp_dph.T.copy()
         return [Compensated(temp_used.copy(), temp_rate_cps.copy(), comps[index], rate_comp_dph[index], own[index])
                 for index in range(count)]
@@ -275,6 +277,7 @@ class _Stack:
                 else:
                     own |= _RATE_INVALID
                     rates_out[index].append(rate)
+                    comp = 0.0  # what was subtracted
                 comps_out[index].append(comp)
                 flags_out[index].append(own)
         self._held(held)
@@ -365,6 +368,17 @@ class ChannelCompensator:
         """Forget the temperature history of every channel."""
         for compensator in self.compensators.values():
             compensator.reset()
+        self._begin()
+
+    def prime(self, history: TempHistory) -> None:
+        """Every channel's inputs as if fed the whole `history` (fogd.core.history), the temperature held its
+        newest; nothing changes for an empty history."""
+        if history.last is None:
+            return
+        for shared in self._banks.values():
+            history.prime(shared.bank)
+        for compensator in self.compensators.values():
+            compensator._held_temp_c = history.last[1]
         self._begin()
 
     def process(
@@ -492,6 +506,7 @@ class ChannelCompensator:
                     else:
                         own |= _RATE_INVALID
                         outs[channel] = value
+                        comp = 0.0  # what was subtracted
                     comps[channel] = comp
                     flags_out[channel] = own
             if group.first:

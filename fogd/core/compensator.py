@@ -16,7 +16,8 @@ Policies (documented in the README):
   flagged TEMP_INVALID; before the first valid temperature nothing is fed to the estimator and the
   compensation is 0.
 - Invalid rate (NaN, Inf, or the caller's `rate_valid` false): flagged RATE_INVALID; the estimator still
-  advances, the compensated rate is the input passed through unchanged.
+  advances, the compensated rate is the input passed through unchanged and the compensation is 0 (what
+  was subtracted).
 - Calibrated domain: inputs are clamped to the training range and the sample flagged CLAMPED.
 - Guarded domain (models with a `domain_guard`, fogd.core.domain): a sample beyond the calibrated range by
   more than the guard's margin ("range", lag-bank models), or far from every calibration block in the scaled
@@ -29,6 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -37,6 +39,9 @@ from fogd.core.estimator import SCALAR_CHUNK
 from fogd.core.flags import Flag
 from fogd.core.frozen import FrozenModel
 from fogd.core.inputs import InputBank
+
+if TYPE_CHECKING:
+    from fogd.core.history import TempHistory
 
 TEMP_VALID_C = (-100.0, 200.0)  # a reading outside this is a broken sensor or a corrupt frame
 _TEMP_INVALID, _WARMUP, _CLAMPED = int(Flag.TEMP_INVALID), int(Flag.WARMUP), int(Flag.CLAMPED)
@@ -88,6 +93,12 @@ class Compensator:
         """Forget the temperature history (e.g. after a gap longer than the caller bridges)."""
         self.bank.reset()
         self._held_temp_c = np.nan
+
+    def prime(self, history: TempHistory) -> None:
+        """The inputs as if fed the whole `history` (fogd.core.history), the temperature held its newest."""
+        if history.last is not None:
+            history.prime(self.bank)
+            self._held_temp_c = history.last[1]
 
     def process(
         self,
@@ -146,6 +157,7 @@ class Compensator:
         if temp_stale is not None:
             flags[np.asarray(temp_stale, dtype=bool)] |= int(Flag.TEMP_STALE)
         rate_comp_dph = np.where(rate_ok, rate_dph - comp_dph, rate_dph)
+        comp_dph[~rate_ok] = 0.0  # what was subtracted: nothing
         return Compensated(temp_used, temp_rate_cps, comp_dph, rate_comp_dph, flags)
 
     def process_few(
@@ -194,7 +206,7 @@ class Compensator:
             flags |= _WARMUP
         if rate_ok and math.isfinite(rate):
             return held, temp_rate, comp, rate - comp, flags
-        return held, temp_rate, comp, rate, flags | _RATE_INVALID
+        return held, temp_rate, 0.0, rate, flags | _RATE_INVALID  # nothing subtracted: comp 0
 
     def _hold(self, temp_c: np.ndarray, valid: np.ndarray) -> np.ndarray:
         held = hold_temperature(temp_c, valid, self._held_temp_c)

@@ -300,7 +300,9 @@ def _check_time(path: str, t_s: np.ndarray, text: _Text, header_line: int, max_g
             f"{path}:{_line_of(row, text, header_line)}: gap of {step[gaps[0]]:.6g} s in time "
             f"(sample period {period_s:.6g} s); split the run into separate files at the gap"
         )
-    return 1.0 / period_s
+    # Times written with a few decimals give steps like 0.2000000000000028 s; the nominal rate to 9 digits
+    # keeps round(average_s * rate_hz) on the daemon's side of a tie (0.5 s at 5 Hz is 2 samples, not 3).
+    return float(f"{1.0 / period_s:.9g}")
 
 
 def _line_of(row: int, text: _Text, header_line: int) -> int:

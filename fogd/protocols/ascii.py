@@ -1,5 +1,5 @@
 """Line formats for humans and scripts (protocol `ascii`): KVH DSP-3000 output lines and fogd's own
-comma-separated lines for rate, temperature, both, and compensated output (grammar in docs/fogd-frames.md).
+comma-separated lines for rate, temperature, both, and compensated output (grammar in docs/reference/wire-formats.md).
 
 Both are single-axis: the rate is the z axis (index 2), x and y are absent. A line that does not parse is
 rejected whole and counted as `bad_line`; blank lines are skipped as garbage.
@@ -34,6 +34,8 @@ from .base import (
 MAX_LINE_LEN = 256
 MAX_RATE_DPH = 3.4e38  # float32's range: every output format can carry it
 FIELD_COUNTS = {"R": 3, "T": 3, "I": 4, "C": 8}
+DSP3000_EXACT_DPH = 1e-10  # a re-encoded DSP-3000 value decodes to the compensated rate within this
+DSP3000_MAX_DECIMALS = 24  # beyond a double's precision for any rate a DSP-3000 sends
 _DSP3000_LINE = re.compile(r"^(\s*)(\S+)(\s+[01]\s*)$")
 
 
@@ -210,8 +212,8 @@ class AsciiProtocol(Protocol):
         text = raw.decode("ascii")
         if frame.message == "dsp3000":
             lead, value, rest = _DSP3000_LINE.match(text.rstrip("\r\n")).groups()
-            decimals = len(value.partition(".")[2])
-            new_value = f"{rate_dph[2] / self.dsp3000_dph_per_unit:{len(lead) + len(value)}.{decimals}f}"
+            new_value = _dsp3000_digits(rate_dph[2], self.dsp3000_dph_per_unit, len(lead) + len(value),
+                                        len(value.partition(".")[2]))  # fmt: skip
             return (new_value + rest + text[len(text.rstrip("\r\n")) :]).encode("ascii")
         body = text.rstrip("\r\n")
         body, star, _ = body.rpartition("*") if "*" in body else (body, "", "")
@@ -221,6 +223,18 @@ class AsciiProtocol(Protocol):
         if star:
             line += "*" + checksum(line.encode("ascii")).decode("ascii")
         return (line + text[len(text.rstrip("\r\n")) :]).encode("ascii")
+
+
+def _dsp3000_digits(rate_dph: float, dph_per_unit: float, width: int, decimals: int) -> str:
+    """The DSP-3000 field for `rate_dph`: the unit's own decimals when they carry it to DSP3000_EXACT_DPH
+    (what a consumer decodes minus the raw reading is then the model's compensation), else as many more
+    as it needs (a compensation of 0.0234 deg/h written to 6 decimals of deg/s loses 0.0018 deg/h)."""
+    value = rate_dph / dph_per_unit
+    text = f"{value:{width}.{decimals}f}"
+    while decimals < DSP3000_MAX_DECIMALS and not abs(float(text) * dph_per_unit - rate_dph) <= DSP3000_EXACT_DPH:
+        decimals += 1
+        text = f"{value:{width}.{decimals}f}"
+    return text
 
 
 def _or_nan(value: float | None) -> float:

@@ -18,12 +18,13 @@ ALL_AXES: Mask3 = (True, True, True)
 NO_AXES: Mask3 = (False, False, False)
 Z_ONLY: Mask3 = (False, False, True)
 IMPLAUSIBLE = 0x8000  # Frame.flags of a rate frame: the plausibility check marked its axis invalid
+TIME_BACKWARDS = 0x4000  # Frame.flags: the device time is earlier than the frame's before (the lexer's mark)
 MAX_T_S = 2.0**53 / 1e6  # device times beyond this (285 years in us) are no clock's: the frame is refused
 
 
 @dataclass(slots=True)
 class Frame:
-    """One decoded frame; `kind` says which fields carry data (see docs/fogd-frames.md).
+    """One decoded frame; `kind` says which fields carry data (see docs/reference/wire-formats.md).
 
     kind 'imu': rate and temperature together (KVH A/B); 'rate': rate only; 'temp': temperature only;
     'comp': fogd's compensated output (adds temp_rate_cps, comp_dph, rate_comp_dph, flags);
@@ -76,6 +77,9 @@ class Protocol(ABC):
     max_frame_len: int
     seq_modulus: int | None  # sequence numbers wrap modulo this; None when the format has none
     line_based: bool = False  # a rejected line is skipped whole; a rejected binary frame by one byte
+    # a frame whose sequence number equals the one before is a copy, dropped (KVH's 7-bit counter cannot
+    # tell a copy from 128 frames lost, so there it is only counted)
+    repeats_are_copies: bool = False
     gyro_axes: Mask3 = ALL_AXES  # the gyro axes the format can carry (what a recorder makes columns of)
     accel_axes: Mask3 = NO_AXES  # the accelerometer axes the format can carry
 

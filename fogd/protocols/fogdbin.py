@@ -4,7 +4,7 @@ output for a multi-channel model: every channel's reading, compensation, compens
 with a sync word, type, length, per-type sequence counter, device timestamp and CRC-16.
 
 Rate and temperature frames carry their own timestamps and counters so a rig with a separate FOG and
-temperature sensor can feed fogd at different rates, over one link or two. Byte tables: docs/fogd-frames.md.
+temperature sensor can feed fogd at different rates, over one link or two. Byte tables: docs/reference/wire-formats.md.
 Everything is big-endian, like the KVH frames; floats are IEEE-754 single.
 """
 
@@ -78,6 +78,7 @@ class FogdProtocol(Protocol):
     sync = SYNC
     max_frame_len = 255
     seq_modulus = SEQ_MODULUS
+    repeats_are_copies = True
     accel_axes = (True, True, True)  # in IMU frames (type 04)
 
     def __init__(self, comp_axes: Sequence[int] = (0, 1, 2), comp_accel_axes: Sequence[int] = (0, 1, 2)) -> None:

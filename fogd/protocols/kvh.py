@@ -1,7 +1,7 @@
 """KVH DSP-1750 / DSP-1760 / 1775 binary frames (protocol `kvh-a`): Format A is the primary format; Formats
 B and C and the built-in-test (BIT) replies are recognised too, so a 1775 or a BIT request never costs sync.
 
-Layouts, CRC and test vectors are in docs/fogd-frames.md. Every multi-byte field is big-endian and
+Layouts, CRC and test vectors are in docs/reference/wire-formats.md. Every multi-byte field is big-endian and
 frames A/B/C end in a CRC-32/MPEG-2 over everything before it. The BIT replies end in one checksum byte that
 KVH does not document; fogd takes it as the 8-bit sum of all bytes before it (as a public KVH driver
 does) and only ever uses BIT frames as kind 'other', so a wrong guess costs a counted drop, never data.

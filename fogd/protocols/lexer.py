@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 
 from ..errors import ConfigError
-from .base import IMPLAUSIBLE, Frame, FrameError, Protocol
+from .base import IMPLAUSIBLE, TIME_BACKWARDS, Frame, FrameError, Protocol
 
 SLICE_FRAMES = 16
 
@@ -36,6 +36,8 @@ class LexerCounters:
     # in a row counts nothing and a loss of 127 (or 255, ...) reads as a repeat; it cannot tell them apart
     frames_missing: int = 0
     seq_repeats: int = 0  # a sequence number equal to the previous one (on KVH, also a loss of 127 frames)
+    frames_repeated: int = 0  # copies of the frame before (fogd: its sequence number, ascii: its time), dropped
+    time_backwards: int = 0  # frames whose device time is earlier than the frame's before (flagged, kept)
     invalid_axes: int = 0  # present axes marked invalid by a status bit or carrying NaN/Inf
     invalid_temps: int = 0  # temperatures that are NaN/Inf
     suspect_frames: int = 0  # frames of an unknown type whose sequence number does not follow (a false header
@@ -62,6 +64,7 @@ class Lexer:
         self._keep_len = max(0, max(len(protocol.sync) for protocol in self.protocols) - 1)
         self._buf = b""
         self._last_seq: dict[tuple[str, str], int] = {}
+        self._last_t_s: dict[tuple[str, str], float] = {}
         # _scan's view of one protocol, looked up once here rather than on every read
         self._single = self.protocols[0] if len(self.protocols) == 1 else None
         self._fast = getattr(self._single, "decode_fast", None)
@@ -105,6 +108,7 @@ class Lexer:
         if self._last_seq:
             counters.seq_resets += 1
             self._last_seq.clear()
+        self._last_t_s.clear()
         return frames
 
     def _next_candidate(self, buf: bytes, pos: int) -> tuple[int, Protocol | None]:
@@ -129,8 +133,8 @@ class Lexer:
                     frame, length = got
                     counters.frame_bytes += length
                     pos += length
-                    append(frame)
-                    account(frame, single)
+                    if account(frame, single):
+                        append(frame)
                     if pos == end:  # the read ended on a frame boundary (the usual read): nothing held back
                         break
                     continue
@@ -169,12 +173,25 @@ class Lexer:
                 counters.garbage_bytes += start - pos
             counters.frame_bytes += length
             pos = start + length
-            append(frame)
-            account(frame, protocol)
+            if account(frame, protocol):
+                append(frame)
         self._buf = buf[pos:] if pos else buf
 
-    def _account(self, frame: Frame, protocol: Protocol) -> None:
+    def _account(self, frame: Frame, protocol: Protocol) -> bool:
+        """Count the frame; False for a copy of the one before, dropped (counted `frames_repeated`)."""
         counters = self.counters
+        t_s = frame.t_s
+        if t_s is not None and frame.kind != "other":
+            key = (frame.protocol, frame.message)
+            previous_t_s = self._last_t_s.get(key)
+            self._last_t_s[key] = t_s
+            if previous_t_s is not None and t_s <= previous_t_s:
+                if t_s == previous_t_s and frame.seq is None:  # a line repeated (ascii lines carry no number)
+                    counters.frames_repeated += 1
+                    return False
+                if t_s < previous_t_s and frame.kind != "comp":  # a clock that went back: flagged, not a step
+                    counters.time_backwards += 1
+                    frame.flags |= TIME_BACKWARDS
         if frame.kind == "other":
             counters.other_frames += 1
         else:
@@ -187,22 +204,28 @@ class Lexer:
             counters.invalid_temps += 1
         seq = frame.seq
         if seq is None or protocol.seq_modulus is None:
-            return
+            return True
         key = (frame.protocol, frame.message) if frame.kind != "other" else (frame.protocol, frame.raw[:3])
         previous = self._last_seq.get(key)
         self._last_seq[key] = seq
         if previous is None:
             if frame.kind == "other" and frame.message == "other":  # a first frame of a type fogd does not know
                 counters.suspect_frames += 1
-            return
+            return True
         step = (seq - previous) % protocol.seq_modulus
         if frame.kind == "other" and frame.message == "other" and step != 1:
             counters.suspect_frames += 1
         if step == 0:
             counters.seq_repeats += 1
+            if protocol.repeats_are_copies and frame.kind != "other":
+                # counted as a repeat, not as a frame: frames_ok stays the count of frames passed on
+                counters.frames_ok -= 1
+                counters.frames_repeated += 1
+                return False
         elif step != 1:
             counters.seq_gaps += 1
             counters.frames_missing += step - 1
+        return True
 
 
 def _has_inner_header(protocol: Protocol, raw: bytes) -> bool:

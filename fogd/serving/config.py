@@ -103,7 +103,8 @@ OPTIONS = (
     Option("model", _text, "text", DEFAULT_MODEL, f"model file from fogd-train (default: {DEFAULT_MODEL}; with "
            "--demo the bundled demo model)", metavar="PATH", reloadable=True),
     Option("out", _text, "text", "-", "where compensated frames go: '-' stdout, a file or serial/pty device path, "
-           "or pty:PATH (fogd makes a pty and links PATH to it) (default: '-' when stdout is a terminal; "
+           "or pty:PATH (fogd makes a pty and links PATH to it; frames go to it only while a reader holds it, who "
+           "gets the CSV header and then live frames) (default: '-' when stdout is a terminal; "
            "required otherwise, as under systemd)", metavar="SINK"),
     Option("out_format", _text, "choice", "same", "output format: 'same' re-encodes the input protocol with the "
            "compensated rate and a fresh CRC; 'fogd' fogd compensated-output frames; 'csv' fogd-replay's columns; "
@@ -147,6 +148,17 @@ OPTIONS = (
            "together on the CPU fogd starts on and moves them when other processes keep it busy; a number keeps "
            "them there; 'any' lets the kernel place each thread (together they cost less CPU: one cache, no "
            "cross-CPU wake-ups) (default: %(default)s)", metavar="auto|any|N"),
+    Option("state_file", _optional_path, "path", "auto", "the thermal state (temperature history) kept across "
+           "restarts, written atomically every few seconds and at stop (docs/reference/thermal-state.md); 'auto': "
+           f"$STATE_DIRECTORY/<instance>-thermal.json when systemd gives a state directory, else none; 'none' "
+           "disables it (every start is then a cold start) (default: %(default)s)", metavar="PATH"),
+    Option("warming", _text, "choice", "compensate", "what a cold start's WARMING samples get: 'compensate' "
+           "(compensated and flagged), 'fallback' (the domain guard's linear fallback where the model has one, "
+           "else passed), 'pass' (passed through uncompensated) (default: %(default)s)",
+           choices=("compensate", "fallback", "pass")),
+    Option("warming_tolerance_dph", number_in(0.0, 1e6, "deg/h", low_open=True), "number", 0.002, "a cold start's "
+           "samples are flagged WARMING while the equilibrium assumption can cost more than this (deg/h; default: "
+           "%(default)s)", "deg/h", "DPH"),
     Option("metrics_address", _address, "text", "127.0.0.1", "address the metrics endpoint binds to "
            "(default: %(default)s; anything else exposes it beyond this machine)", metavar="ADDR"),
 )
@@ -283,6 +295,15 @@ def check(settings: dict[str, Any], *, demo: bool) -> None:
 def instance_stats_path(instance: str) -> str:
     """Where a daemon named `instance` writes its stats by default: <runtime dir>/<instance>.json."""
     return os.path.join(RUNTIME_DIR, f"{instance}.json")
+
+
+def state_path(setting: str | None, instance: str) -> str | None:
+    """The thermal state file: the setting, or for 'auto' <$STATE_DIRECTORY>/<instance>-thermal.json when systemd
+    set a state directory (StateDirectory=), else none."""
+    if setting != "auto":
+        return setting
+    directory = os.environ.get("STATE_DIRECTORY", "").split(":")[0]
+    return os.path.join(directory, f"{instance}-thermal.json") if directory else None
 
 
 def stats_path(setting: str | None, instance: str) -> str | None:

@@ -13,7 +13,9 @@ flags (`stop`, `request_reload`, `request_counters`); a reload is prepared (conf
 helper thread and swapped in between two batches, so no frame is lost or compensated twice. The estimator
 state survives a swap when the new model has the same inputs (same estimator settings), else it restarts
 with a warm-up (logged). systemd is told READY=1, a STATUS= summary, and WATCHDOG=1 only while the reader
-thread is alive and coming round its loop: a hung reader stops the pings and systemd restarts fogd.
+thread is alive and coming round its loop and the output takes frames: a hung reader, or an output whose
+every write has failed for longer than WatchdogSec, stops the pings and systemd restarts fogd. stdout's
+reader closing the pipe (EPIPE) ends the run, exit 0, as it ends any Unix filter.
 """
 
 from __future__ import annotations
@@ -34,20 +36,23 @@ import numpy as np
 
 from fogd import __version__
 from fogd.core.channels import ChannelCompensator, ChannelModels
-from fogd.core.compensator import Compensated
+from fogd.core.compensator import TEMP_VALID_C, Compensated
 from fogd.core.estimator import SCALAR_CHUNK
 from fogd.core.flags import Flag, describe
 from fogd.core.frozen import FrozenModel
 from fogd.core.modelfile import check_rate, printable
 from fogd.errors import ConfigError, FogdError
-from fogd.protocols.base import Frame
+from fogd.protocols.base import TIME_BACKWARDS, Frame
 from fogd.serving.channels import ChannelPlan, as_models, method, plan
+from fogd.serving.clock import DeviceRate
+from fogd.serving.missing import MissingChannels
 from fogd.serving.outputs import Chunk, Formatter, OutputBatch, Writer, split_batch
 from fogd.serving.placement import ANY, Placement
 from fogd.serving.reader import Reader
 from fogd.serving.ring import RATE_KINDS, TEMP_KINDS, Ring
 from fogd.serving.sdnotify import Notifier
 from fogd.serving.statsfile import write_stats
+from fogd.serving.thermalstate import SAVE_EVERY_S, Thermal
 
 log = logging.getLogger("fogd.daemon")
 status_log = logging.getLogger("fogd.status")
@@ -71,6 +76,7 @@ READER_STALL_S = 2.0  # a reader that has not come round its loop for this long 
 HISTORY_FIELDS = ("uptime_s", "temp_c", "temp_rate_cps", "comp_dph", "flags")
 NOT_DROPS = ("frames_ok", "other_frames", "frame_bytes", "seq_resets")  # lexer counters that count no loss
 _OUT_OF_DOMAIN, _CLAMPED = int(Flag.OUT_OF_DOMAIN), int(Flag.CLAMPED)
+_TIME_BACKWARDS = int(Flag.TIME_BACKWARDS)
 
 
 @dataclass
@@ -154,6 +160,7 @@ class LoopCounters:
     samples_compensated: int = 0
     samples_out_of_domain: int = 0  # compensated by the domain guard's linear fallback (OUT_OF_DOMAIN)
     samples_clamped: int = 0  # with an input clamped to the calibrated range (CLAMPED)
+    samples_warming: int = 0  # a cold start's inputs rest on the equilibrium assumption (WARMING; serving.thermalstate)
     reader_deaths: int = 0
     writer_deaths: int = 0
     reloads: int = 0
@@ -161,6 +168,7 @@ class LoopCounters:
     reloads_stuck: int = 0  # a reload that did not finish within RELOAD_TIMEOUT_S (abandoned, later ones run)
     records_popped: int = 0  # ring records compensated and encoded (or counted unencodable)
     frames_unencodable: int = 0  # frames whose values no output encoding could carry (or the model failed on)
+    samples_missing_channel: int = 0  # rate samples lacking a channel the model compensates (passed through)
 
 
 @dataclass(frozen=True)
@@ -215,6 +223,7 @@ class Daemon:
         stats_path: str | None = None,
         info: dict | None = None,
         placement: Placement | None = None,
+        thermal: Thermal | None = None,
     ) -> None:
         self.reader = reader
         self.writer = writer
@@ -248,9 +257,13 @@ class Daemon:
         self._reload_thread: threading.Thread | None = None
         self._reload_ready: Reload | None = None
         self._stall_logged = False
+        self._output_logged = False
         self._encode_error_logged = False
         self._reload_started_s = 0.0
         self.history: deque[tuple[float, ...]] = deque(maxlen=HISTORY_POINTS)
+        self.thermal = thermal  # the temperature history kept across reloads and restarts, and WARMING
+        self.rate = DeviceRate(rate_hz, self.info.get("rate_source", "the config"))
+        self.channels_seen = MissingChannels(self.plan)
 
     def _compensator(self, models: ChannelModels, rate_hz: float) -> ChannelCompensator:
         """The one compensator of every covered channel, as fogd-replay builds it; each model's window is
@@ -281,7 +294,7 @@ class Daemon:
     def run(self) -> None:
         started_s = self.started_s = time.monotonic()
         next_status_s = started_s + self.status_interval_s
-        next_notify_s = next_stats_s = next_pet_s = started_s
+        next_notify_s = next_stats_s = next_pet_s = next_save_s = started_s
         pet_every_s = self.notifier.watchdog_interval_s
         switch_interval_s = sys.getswitchinterval()
         sys.setswitchinterval(SWITCH_INTERVAL_S)
@@ -304,6 +317,9 @@ class Daemon:
                 next_duties_s = now_s + DUTIES_S
                 if self.duration_s is not None and now_s - started_s >= self.duration_s:
                     break
+                if self.writer.consumer_gone:  # stdout's reader closed the pipe: end as a Unix filter does
+                    log.warning("output %s closed by its reader (broken pipe); stopping", self.writer.sink.name)
+                    break
                 if now_s >= next_status_s:
                     status_log.info(self.status_line())
                     self.latency.max_s = 0.0
@@ -312,6 +328,8 @@ class Daemon:
                     self._counters_requested.clear()
                     status_log.info("%s | counters %s", self.status_line(), json.dumps(self.counters_dict()))
                 self._handle_reload()
+                self._follow_rate(now_s)
+                self.channels_seen.check(now_s)
                 self._watch_threads()
                 self.placement.follow(now_s)
                 if pet_every_s is not None and now_s >= next_pet_s and self.healthy(now_s):
@@ -326,6 +344,9 @@ class Daemon:
                                          float(latest.flags)))  # fmt: skip
                     write_stats(self.stats_path, self.snapshot())
                     next_stats_s = now_s + STATS_EVERY_S
+                if self.thermal is not None and now_s >= next_save_s:
+                    self.thermal.save()
+                    next_save_s = now_s + SAVE_EVERY_S
         finally:
             self.notifier.send("STOPPING=1")
             self.reader.stop()
@@ -333,6 +354,8 @@ class Daemon:
             if not self.writer.close(FLUSH_TIMEOUT_S):
                 log.warning("output did not take the last frames within %.1f s", FLUSH_TIMEOUT_S)
             status_log.info("final: %s", self.status_line())
+            if self.thermal is not None:
+                self.thermal.save(wait=True)
             if self.stats_path is not None:
                 write_stats(self.stats_path, {**self.snapshot(), "running": False})
             sys.setswitchinterval(switch_interval_s)
@@ -348,7 +371,34 @@ class Daemon:
                 self._stall_logged = True
             return False
         self._stall_logged = False
+        # an output that has taken nothing for longer than the watchdog's own interval (twice the ping's): a
+        # daemon alive but useless, for systemd to restart
+        watchdog_s = 2.0 * (self.notifier.watchdog_interval_s or math.inf)
+        failing_s = self.writer.failing_s(now_s)
+        if failing_s > watchdog_s:
+            if not self._output_logged:
+                log.error("output %s has taken nothing for %.1f s; no watchdog ping (systemd will restart fogd)",
+                          self.writer.sink.name, failing_s)  # fmt: skip
+                self._output_logged = True
+            return False
+        self._output_logged = False
         return self.reader.alive and self.writer.alive
+
+    def _follow_rate(self, now_s: float) -> None:
+        """Use the rate the frames' own clock says once it has disagreed with the one in use (clock.py)."""
+        rate_hz = self.rate.check(now_s)
+        if rate_hz is None:
+            return
+        try:
+            compensator = self._compensator(self.models, rate_hz)
+        except (ValueError, FogdError) as error:  # a window the measured rate cannot hold
+            log.error("rate: cannot run the model at %g Hz (%s); keeping %g Hz", rate_hz, printable(str(error)),
+                      self.rate_hz)  # fmt: skip
+            self.rate.keep()
+            return
+        self._drain()  # what arrived so far at the old rate
+        self.compensator, self.rate_hz = compensator, rate_hz
+        self.rate.use(rate_hz)
 
     def _handle_reload(self) -> None:
         """Start preparing a requested reload on a helper thread; swap in a prepared one (between batches)."""
@@ -409,12 +459,12 @@ class Daemon:
         model, models = reload.model, as_models(reload.model)
         new = reload.compensator or self._compensator(models, self.rate_hz)
         kept = _carry_state(self.compensator, new)
+        state = "kept (same inputs)" if kept else "reset (inputs differ): warm-up again"
+        if self.thermal is not None:  # the history primes new inputs (serving.thermalstate)
+            state = self.thermal.reloaded([models[c] for c in self.plan.covered], new, prime=not kept)
         self.compensator, self.model, self.models = new, model, models
         self.counters.reloads += 1
-        log.warning(
-            "reloaded: model %s (%s); estimator state %s", printable(model.name), method(models),
-            "kept (same inputs)" if kept else "reset (inputs differ): warm-up again",
-        )  # fmt: skip
+        log.warning("reloaded: model %s (%s); estimator state %s", printable(model.name), method(models), state)
 
     def _drain(self) -> None:
         """Compensate and hand on every batch in the ring."""
@@ -463,6 +513,8 @@ class Daemon:
         """One channel-compensator call for every rate sample in `frames` (received at `t_rx_s`), every
         covered channel at once; a few frames (a batch at real rates is one) go row by row through the
         compensator's pre-bound `process_row`, in plain Python."""
+        if self.thermal is not None and self.thermal.pending:
+            self._thermal_start(frames)
         if len(frames) <= SCALAR_CHUNK:
             return self._compensate_rows(frames, t_rx_s)
         samples = self.temperature.channel_samples(frames, t_rx_s, self.plan.sources)
@@ -478,6 +530,16 @@ class Daemon:
         comp = comps[names[0]]
         self._count_domain(comp.flags if len(names) == 1 else _any_flags(comps.values()))
         return self._batch(frames, t_rx_s, rows, samples.device_s, samples.values[0], comp, comps)
+
+    def _thermal_start(self, frames: list[Frame]) -> None:
+        """At the first valid temperature: restore the thermal state (or start cold) before it is compensated."""
+        low_c, high_c = TEMP_VALID_C
+        for frame in frames:
+            if frame.kind in TEMP_KINDS and frame.temp_c is not None and low_c <= frame.temp_c <= high_c:
+                device = frame.t_s is not None and frame.t_s == frame.t_s
+                t_s = frame.t_s if device else self.clock.count / self.rate_hz
+                self.thermal.start(t_s, device, frame.temp_c, self.compensator)
+                return
 
     def _compensate_rows(self, frames: list[Frame], t_rx_s: list[float]) -> OutputBatch:
         """`compensate` of a few frames, one `process_row` per rate frame; the same floats and flags."""
@@ -548,7 +610,18 @@ class Daemon:
                 self.latency.max_s = latency_s
         if rows:
             self._newest = (readings, comp, comps)  # made into `latest` only when someone reads it
+            if device_s[0] is not None:
+                self.rate.add(device_s)
+            lacking = self.channels_seen.add(frames, rows, t_rx_s[0])
+            if lacking:
+                self.counters.samples_missing_channel += lacking
+            for j, row in enumerate(rows):
+                if frames[row].flags & TIME_BACKWARDS:  # the lexer's mark, in the sample's own flags
+                    for one in (comps.values() if comps else (comp,)):
+                        one.flags[j] |= _TIME_BACKWARDS
         times = self.clock.times(device_s)
+        if self.thermal is not None:
+            self.counters.samples_warming += self.thermal.observe(times, comp, comps)
         t_s = times if len(frames) <= SCALAR_CHUNK else np.array(times, dtype=np.float64)
         return OutputBatch(frames, rows, t_s, comp, None if self.plan.single else comps)
 
@@ -609,16 +682,24 @@ class Daemon:
         )
         dropped_out = (
             writer.frames_dropped_full + writer.frames_dropped_timeout + writer.frames_dropped_error
-            + writer.frames_dropped_exit + writer.frames_cut
+            + writer.frames_dropped_exit + writer.frames_cut + writer.frames_dropped_no_reader
         )
         return (
             f"in {frames_in or 0} | out {writer.frames_written} dropped {dropped_out} | drops {drops or 'none'} | "
             f"ring overruns {self.ring.overruns} | reconnects {reader.reconnects}"
             f"{f' (about {reader.disconnected_s * self.rate_hz:.0f} frames lost unplugged)' if reader.disconnects else ''} | "
+            f"rate {self.rate.describe()} | {self._missing_text()}"
             f"latency {1e3 * self.latency.last_s:.1f} ms (max {1e3 * self.latency.max_s:.1f}) | "
             f"T {latest.temp_c:.2f} C dT/dt {latest.temp_rate_cps:+.5f} C/s {self._comp_text()} | "
             f"{_shares_text(self.domain_shares())} | model {printable(self.model.name)} | fogd {__version__}"
         )
+
+    def _missing_text(self) -> str:
+        """'MISSING rate_x_dph (1234 samples) | ' for compensated channels the frames never carried, else ''."""
+        missing = self.channels_seen.missing
+        if not missing:
+            return ""
+        return f"MISSING {', '.join(missing)} ({self.counters.samples_missing_channel} samples) | "
 
     def _comp_text(self) -> str:
         """'comp +0.0123 deg/h (flags)', or with a multi-channel model each channel's, and those passed through."""
@@ -655,11 +736,14 @@ class Daemon:
             "connected": bool(getattr(self.reader, "connected", True)),
             "model": {"name": self.model.name, "method": method(self.models)},
             "channels": {"compensated": list(self.plan.covered), "passed": list(self.plan.passed)},
+            "missing_channels": self.channels_seen.missing,  # compensated, but no frame has carried them
+            "rate": self.rate.as_dict(),
             "cpu": self.placement.describe(),
             "latest": asdict(self.latest),
             "latency_s": {"last": self.latency.last_s, "max_since_status": self.latency.max_s},
             "counters": self.counters_dict(),
             "domain_shares": self.domain_shares(),
+            "thermal": self.thermal.status() if self.thermal is not None else None,
             "history": {name: [point[i] for point in list(self.history)] for i, name in enumerate(HISTORY_FIELDS)},
             "status": self.status_line(),
         }
@@ -683,6 +767,7 @@ class Daemon:
         settled = (
             writer.frames_written + writer.frames_dropped_full + writer.frames_dropped_timeout
             + writer.frames_dropped_error + writer.frames_dropped_exit + writer.frames_cut
+            + writer.frames_dropped_no_reader
         )  # fmt: skip
         dropped = {
             "ring_overrun": self.ring.overruns,
@@ -692,6 +777,7 @@ class Daemon:
             "output_error": writer.frames_dropped_error,
             "output_at_exit": writer.frames_dropped_exit,
             "output_cut": writer.frames_cut,
+            "output_no_reader": writer.frames_dropped_no_reader,
         }
         pending = {
             "ring": len(self.ring),

@@ -9,11 +9,18 @@ does. When the writer thread is idle (nothing queued or being written) and the s
 loop writes the chunk itself with one non-blocking write, and queues only what the consumer did not take at
 once: output order is kept, nothing waits, and a frame reaches the consumer without a wake-up of the writer
 thread (most of the daemon's latency at real rates).
+
+An output that goes away (a serial port unplugged, a consumer's pty re-created behind its link, a FIFO's
+reader gone) is closed and opened again by path with a back-off, as the input port is; meanwhile its frames
+are dropped and counted. A pty fogd makes (`pty:PATH`) is written only while a reader holds it open: frames
+for nobody are dropped and counted, never queued in the kernel for a reader that comes later, who gets the
+CSV header (if any) and then live frames.
 """
 
 from __future__ import annotations
 
 import bisect
+import errno
 import logging
 import math
 import os
@@ -22,6 +29,7 @@ import select
 import stat
 import threading
 import time
+import termios
 import tty
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -49,6 +57,8 @@ CSV_ROW = ",".join(OUTPUT_FORMATS[name] for name in CSV_COLUMNS) + "\n"
 WRITE_TIMEOUT_S = 1.0
 QUEUE_CHUNKS = 64  # batches waiting for the sink; a batch is at most a ring's pop, so memory stays bounded
 PTY_PREFIX = "pty:"
+REOPEN_FIRST_S = 0.05  # an output that went away is tried again after this, doubling up to REOPEN_MAX_S
+REOPEN_MAX_S = 2.0
 
 
 @dataclass
@@ -336,13 +346,20 @@ class SinkError(Exception):
 
 
 class Sink:
-    """A byte destination with a file descriptor; `write` gives up after a timeout and says how far it got."""
+    """A byte destination with a file descriptor; `write` gives up after a timeout and says how far it got.
 
-    def __init__(self, name: str, fd: int, *, blocking: bool, on_close=None) -> None:
+    `opener` (devices and FIFOs) opens the same path again, as a new Sink, after the destination went away
+    (a USB-serial output replugged, a consumer's pty re-created behind the same link, a FIFO's reader back);
+    `ends_on_epipe` (stdout): a reader that closed the pipe ends fogd, as it ends any Unix filter."""
+
+    ends_on_epipe = False
+
+    def __init__(self, name: str, fd: int, *, blocking: bool, on_close=None, opener=None) -> None:
         self.name = name
         self.fd = fd
         self.blocking = blocking  # regular files: the disk, not a consumer, sets the pace
         self._on_close = on_close
+        self.opener = opener
         try:
             self.regular = stat.S_ISREG(os.fstat(fd).st_mode)  # a cut frame can be cut off again (truncate)
         except OSError:
@@ -382,9 +399,25 @@ class Sink:
             return False
         return True
 
+    def reader_present(self) -> bool:
+        """Whether frames written now reach a reader (a pty fogd made may have none)."""
+        return True
+
     def close(self) -> None:
         if self._on_close is not None:
             self._on_close()
+            self._on_close = None
+        self.fd = -1
+
+    def reopen(self) -> bool:
+        """Close the descriptor and open the path again (False, still closed, while it cannot be opened)."""
+        self.close()
+        try:
+            new = self.opener()
+        except DeviceError:
+            return False
+        self.fd, self._on_close, self.blocking = new.fd, new._on_close, new.blocking
+        return True
 
 
 def open_sink(spec: str, baud: int) -> Sink:
@@ -404,7 +437,7 @@ def open_sink(spec: str, baud: int) -> Sink:
         return _device_sink(spec, baud)
     try:
         if stat.S_ISFIFO(mode):
-            return Sink(spec, os.open(spec, os.O_WRONLY | os.O_NONBLOCK), blocking=False)
+            return _fifo_sink(spec)
         fd = os.open(spec, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
     except OSError as error:
         raise DeviceError(f"cannot open output {describe_os_error(error)}") from None
@@ -413,24 +446,38 @@ def open_sink(spec: str, baud: int) -> Sink:
 
 def _stdout_sink() -> Sink:
     if stat.S_ISREG(os.fstat(1).st_mode):
-        return Sink("stdout", 1, blocking=True)
-    # A pipe or terminal: a fresh open file description, so non-blocking mode does not leak to the shell.
+        sink = Sink("stdout", 1, blocking=True)
+    else:
+        # A pipe or terminal: a fresh open file description, so non-blocking mode does not leak to the shell.
+        try:
+            fd = os.open("/proc/self/fd/1", os.O_WRONLY | os.O_NONBLOCK | os.O_NOCTTY)
+        except OSError:
+            sink = Sink("stdout", 1, blocking=True)
+        else:
+            sink = Sink("stdout", fd, blocking=False, on_close=lambda: os.close(fd))
+    sink.ends_on_epipe = True
+    return sink
+
+
+def _fifo_sink(path: str) -> Sink:
+    """A FIFO, written without blocking; reopened when its reader comes back (ENXIO until one does)."""
     try:
-        fd = os.open("/proc/self/fd/1", os.O_WRONLY | os.O_NONBLOCK | os.O_NOCTTY)
-    except OSError:
-        return Sink("stdout", 1, blocking=True)
-    return Sink("stdout", fd, blocking=False, on_close=lambda: os.close(fd))
+        fd = os.open(path, os.O_WRONLY | os.O_NONBLOCK)
+    except OSError as error:
+        raise DeviceError(f"cannot open output {describe_os_error(error)}") from None
+    return Sink(path, fd, blocking=False, on_close=lambda: os.close(fd), opener=lambda: _fifo_sink(path))
 
 
 def _device_sink(path: str, baud: int) -> Sink:
     """A serial port or someone else's pty (opened like the input port), or another character device such
-    as /dev/null; written without blocking."""
+    as /dev/null; written without blocking, and opened again (the same path) when it goes away and returns."""
     try:
         fd = os.open(path, os.O_WRONLY | os.O_NOCTTY | os.O_NONBLOCK)
     except OSError as error:
         raise DeviceError(f"cannot open output {describe_os_error(error)}") from None
+    opener = lambda: _device_sink(path, baud)  # noqa: E731
     if not os.isatty(fd):
-        return Sink(path, fd, blocking=False, on_close=lambda: os.close(fd))
+        return Sink(path, fd, blocking=False, on_close=lambda: os.close(fd), opener=opener)
     os.close(fd)
     try:
         port = serial.Serial(path, baud, write_timeout=0, exclusive=True)
@@ -438,7 +485,7 @@ def _device_sink(path: str, baud: int) -> Sink:
         raise DeviceError(f"cannot open output {describe_open_error(path, error)}") from None
     except (OSError, ValueError) as error:
         raise DeviceError(f"cannot open output {path}: {error}") from None
-    return Sink(path, port.fd, blocking=False, on_close=port.close)
+    return Sink(path, port.fd, blocking=False, on_close=port.close, opener=opener)
 
 
 def _pty_sink(link: str) -> Sink:
@@ -460,6 +507,9 @@ def _pty_sink(link: str) -> Sink:
         os.close(slave)
         raise DeviceError(f"cannot make pty link {link}: {describe_os_error(error)}") from None
     log.info("output pty %s -> %s", link, slave_name)
+    # fogd does not keep the slave open (the master's writes succeed all the same, and its raw mode stays):
+    # the master's poll then says whether a reader holds it (PtySink)
+    os.close(slave)
 
     def close() -> None:
         try:
@@ -468,10 +518,37 @@ def _pty_sink(link: str) -> Sink:
         except OSError:
             pass
         os.close(master)
-        os.close(slave)
 
-    # fogd keeps the slave open too, so a consumer that comes and goes never makes the master's writes fail.
-    return Sink(f"pty {link}", master, blocking=False, on_close=close)
+    return PtySink(f"pty {link}", master, blocking=False, on_close=close)
+
+
+class PtySink(Sink):
+    """A pty fogd made: frames go to it only while a reader holds its slave open. While none does they are
+    dropped (counted `frames_dropped_no_reader`), and what a reader that left had not read is flushed, so a
+    consumer that (re)opens the link gets the CSV header (if any) and then live frames, never seconds-old ones
+    queued in the kernel (KVH frames carry no time to tell them by)."""
+
+    def __init__(self, name: str, fd: int, **kwargs) -> None:
+        super().__init__(name, fd, **kwargs)
+        self._poll = select.poll()
+        self._poll.register(fd, 0)  # no events asked: poll reports the hang-up alone (no slave open)
+        self._reader = False
+        self.arrived = False  # a reader opened it since the writer last looked: the header goes first
+
+    def reader_present(self) -> bool:
+        if any(events & select.POLLHUP for _, events in self._poll.poll(0)):
+            if self._reader:
+                self._reader = False
+                try:
+                    termios.tcflush(self.fd, termios.TCOFLUSH)  # what the reader left unread
+                except termios.error:
+                    pass
+                log.info("%s: reader gone; frames dropped until one opens it", self.name)
+            return False
+        if not self._reader:
+            self._reader = self.arrived = True
+            log.info("%s: a reader opened it", self.name)
+        return True
 
 
 @dataclass
@@ -485,8 +562,10 @@ class WriterCounters:
     frames_dropped_timeout: int = 0  # the consumer did not take bytes within the write timeout
     frames_dropped_error: int = 0  # the sink reported an error
     frames_dropped_exit: int = 0  # still queued when the flush at exit ran out of time
+    frames_dropped_no_reader: int = 0  # a pty fogd made with no reader holding it (not queued for a later one)
     frames_cut: int = 0  # begun on the wire but never finished: the consumer stalled through the exit flush
     frames_pending: int = 0  # begun on the wire; its rest goes before anything else
+    reopens: int = 0  # times the output came back after it went away (not a frame count)
 
 
 class Writer:
@@ -511,8 +590,20 @@ class Writer:
         self._tail = b""  # the unwritten rest of a frame begun on the wire (writer thread's, set before _done)
         self._give_up_s = math.inf  # monotonic time after which queued chunks are counted, not written (exit)
         self._running = False  # the thread is in `_run` (a flag: `Thread.is_alive` is three Python calls a submit)
+        self._header = b""
+        self._gated = isinstance(sink, PtySink)  # frames only while a reader holds it
+        self.consumer_gone = False  # stdout's reader closed the pipe (EPIPE): the daemon stops
+        self._failing_since_s: float | None = None  # the first failed write since the last one that worked
+        self._down_since_s: float | None = None  # the sink went away and is being reopened (writer thread's)
+        self._retry_s = 0.0
+        self._backoff_s = REOPEN_FIRST_S
 
     def start(self, header: bytes = b"") -> None:
+        self._header = header
+        if self._gated and not self.sink.reader_present():
+            header = b""  # written when a reader opens it
+        if self._gated:
+            self.sink.arrived = False
         if header:
             try:
                 self.sink.write(header, self.write_timeout_s)
@@ -525,11 +616,27 @@ class Writer:
     def alive(self) -> bool:
         return self._thread.is_alive()
 
+    def failing_s(self, now_s: float) -> float:
+        """How long every write has failed (the sink gone, being reopened); 0 while writes work."""
+        since_s = self._failing_since_s
+        return 0.0 if since_s is None else now_s - since_s
+
     def submit(self, chunk: Chunk) -> None:
-        """Queue a chunk without waiting; a full queue drops it (counted)."""
+        """Queue a chunk without waiting; a full queue drops it (counted), and so does a pty of fogd's own
+        with no reader (a reader that opens it later gets the header first, then frames from then on)."""
         if not chunk.frame_ends:
             return
         self.counters.frames_submitted += len(chunk.frame_ends)
+        if self._gated:
+            sink = self.sink
+            if not sink.reader_present():
+                self.counters.frames_dropped_no_reader += len(chunk.frame_ends)
+                return
+            if sink.arrived:
+                sink.arrived = False
+                if self._header:
+                    size = len(self._header)
+                    chunk = Chunk(self._header + chunk.data, [end + size for end in chunk.frame_ends], chunk.begun)
         if not self.sink.blocking and self._queued == self._done and not self._tail and self._running:
             rest = self._write_now(chunk)
             if rest is None:
@@ -550,6 +657,7 @@ class Writer:
             return chunk
         complete = bisect.bisect_right(chunk.frame_ends, written)
         self.counters.frames_written += complete
+        self._failing_since_s = None
         if written == len(chunk.data):
             return None
         begun = written > (chunk.frame_ends[complete - 1] if complete else 0)
@@ -611,8 +719,45 @@ class Writer:
             counters.frames_cut += 1
         self._tail = b""
 
+    def _reopened(self) -> bool:
+        """Whether the sink that went away is back (tried again after a back-off doubling up to REOPEN_MAX_S)."""
+        now_s = time.monotonic()
+        if now_s < self._retry_s:
+            return False
+        if not self.sink.reopen():
+            self._retry_s = now_s + self._backoff_s
+            self._backoff_s = min(2.0 * self._backoff_s, REOPEN_MAX_S)
+            return False
+        log.warning("%s: reopened after %.1f s; writing again", self.sink.name, now_s - (self._down_since_s or now_s))
+        self.counters.reopens += 1
+        self._down_since_s = None
+        self._backoff_s = REOPEN_FIRST_S
+        self._error_logged = False
+        return True
+
+    def _went_away(self, failure: SinkError) -> None:
+        """The sink failed: stdout's reader gone ends fogd; a device or FIFO is closed and reopened."""
+        if self._failing_since_s is None:
+            self._failing_since_s = time.monotonic()
+        if failure.error.errno == errno.EPIPE and self.sink.ends_on_epipe:
+            self.consumer_gone = self._error_logged = True  # the daemon says so, and stops
+            return
+        if self.sink.opener is not None and self._down_since_s is None:
+            self._down_since_s = self._retry_s = time.monotonic()
+            self._backoff_s = REOPEN_FIRST_S
+            self.sink.close()
+            if not self._error_logged:
+                log.warning("%s: write failed: %s; reopening it as it comes back", self.sink.name, failure)
+                self._error_logged = True
+
     def _write(self, chunk: Chunk) -> None:
         counters = self.counters
+        if self._down_since_s is not None and not self._reopened():
+            counters.frames_dropped_error += len(chunk.frame_ends)
+            return
+        if self.consumer_gone:
+            counters.frames_dropped_error += len(chunk.frame_ends)
+            return
         data, ends, begun = chunk.data, chunk.frame_ends, chunk.begun
         if self._tail:  # finish the frame begun on the wire before anything else
             tail = self._tail
@@ -629,15 +774,21 @@ class Writer:
         partial = complete < len(ends) and (written > frame_start or (complete == 0 and begun))
         if partial and failure is not None and written > frame_start and self.sink.cut_back(written - frame_start):
             partial = False  # a file: the frame the disk took part of is gone again, whole
+        cut = 0
+        if partial and failure is not None and self.sink.opener is not None:
+            counters.frames_cut += 1  # begun on a device that went away: the one reopened gets whole frames only
+            partial, cut = False, 1
         if partial:
             self._tail = data[written : ends[complete]]
             counters.frames_pending = 1
-        lost = len(ends) - complete - (1 if partial else 0)
+        lost = len(ends) - complete - (1 if partial else 0) - cut
         counters.frames_written += complete
         if failure is None:
             self._error_logged = False
+            self._failing_since_s = None
             counters.frames_dropped_timeout += lost
             return
+        self._went_away(failure)
         if not self._error_logged:
             log.warning("%s: write failed: %s; dropping output until it recovers", self.sink.name, failure)
             self._error_logged = True

@@ -14,6 +14,7 @@ from __future__ import annotations
 import logging
 import math
 import socket
+import sys
 import threading
 import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -53,12 +54,20 @@ def render(snapshot: dict[str, Any]) -> str:
     metric("fogd_samples_compensated_total", "counter", "Rate samples compensated.", [("", loop["samples_compensated"])])
     metric("fogd_samples_flagged_total", "counter",
            "Rate samples compensated by the domain guard's linear fallback (out_of_domain) or with an input "
-           "clamped to the calibrated range (clamped).",
-           [('{flag="out_of_domain"}', loop["samples_out_of_domain"]), ('{flag="clamped"}', loop["samples_clamped"])])
+           "clamped to the calibrated range (clamped), or resting on a cold start's equilibrium assumption (warming).",
+           [('{flag="out_of_domain"}', loop["samples_out_of_domain"]), ('{flag="clamped"}', loop["samples_clamped"]),
+            ('{flag="warming"}', loop.get("samples_warming", 0))])
     shares = snapshot["domain_shares"]
     metric("fogd_samples_flagged_share", "gauge", "Share of the rate samples compensated since start with that flag.",
            [(f'{{flag="{name}"}}', shares[name]) for name in ("out_of_domain", "clamped")])
     metric("fogd_reloads_total", "counter", "Reloads applied (SIGHUP).", [("", loop["reloads"])])
+    if "samples_missing_channel" in loop:
+        metric("fogd_samples_missing_channel_total", "counter",
+               "Rate samples lacking a channel the model compensates (passed through uncompensated).",
+               [("", loop["samples_missing_channel"])])  # fmt: skip
+    if isinstance(snapshot.get("rate"), dict):
+        metric("fogd_rate_hz", "gauge", "Sample rate the estimator uses, Hz (the frames' own clock where they carry time).",
+               [("", snapshot["rate"].get("in_use_hz"))])  # fmt: skip
     metric("fogd_connected", "gauge", "1 while the port is open.", [("", int(bool(snapshot["connected"])))])
     latest = snapshot["latest"]
     for key, help_text in (("temp_c", "Temperature used, C."), ("temp_rate_cps", "Temperature rate, C/s."),
@@ -67,6 +76,18 @@ def render(snapshot: dict[str, Any]) -> str:
     metric("fogd_latency_seconds", "gauge", "Read-to-output latency of the newest batch.",
            [("", snapshot["latency_s"]["last"])])
     return "\n".join(lines) + "\n"
+
+
+def render_server(client_errors: int, evicted: int) -> str:
+    """The endpoint's own counters."""
+    return (
+        "# HELP fogd_metrics_client_errors_total Metrics connections that failed (reset by the client, broken pipe).\n"
+        "# TYPE fogd_metrics_client_errors_total counter\n"
+        f"fogd_metrics_client_errors_total {float(client_errors)!r}\n"
+        "# HELP fogd_metrics_evicted_total Idle metrics connections closed to make room for a new one.\n"
+        "# TYPE fogd_metrics_evicted_total counter\n"
+        f"fogd_metrics_evicted_total {float(evicted)!r}\n"
+    )
 
 
 class _Server(ThreadingHTTPServer):
@@ -79,7 +100,18 @@ class _Server(ThreadingHTTPServer):
         self._lock = threading.Lock()
         self._open: dict[Any, float] = {}  # connection -> when it was accepted
         self.evicted = 0
+        self.client_errors = 0  # connections that failed under a handler (a reset, a broken pipe): counted only
         super().__init__(*args, **kwargs)
+
+    def handle_error(self, request: Any, client_address: Any) -> None:
+        """A client that resets its connection (or any failure under a handler) costs a count and, the first
+        time, one debug line: never socketserver's traceback on stderr, the journal (a remote client could
+        fill it)."""
+        self.client_errors += 1
+        if self.client_errors == 1:
+            error = sys.exc_info()[1]
+            log.debug("metrics: a client connection failed (%s); such failures are counted, not logged",
+                      type(error).__name__ if error is not None else "unknown")  # fmt: skip
 
     def process_request(self, request: Any, client_address: Any) -> None:
         if not self._slots.acquire(blocking=False):
@@ -128,7 +160,8 @@ def serve(snapshot: Callable[[], dict[str, Any]], address: str, port: int) -> Th
             if self.path.split("?")[0] != "/metrics":
                 self.send_error(404, "only /metrics here")
                 return
-            body = render(snapshot()).encode()
+            server = self.server
+            body = (render(snapshot()) + render_server(server.client_errors, server.evicted)).encode()
             self.send_response(200)
             self.send_header("Content-Type", "text/plain; version=0.0.4; charset=utf-8")
             self.send_header("Content-Length", str(len(body)))

@@ -129,5 +129,17 @@ def describe(snapshot: dict[str, Any]) -> str:
             f"dT/dt {number(latest.get('temp_rate_cps'), '+.5f')} C/s, {comp}, "
             f"latency {number(1e3 * latency['last'] if isinstance(latency.get('last'), (int, float)) else None, '.1f')} ms",
             str(snapshot.get("status", "")),
+            *_thermal_lines(snapshot.get("thermal")),
         ]
     )
+
+
+def _thermal_lines(thermal: Any) -> list[str]:
+    """The thermal state's line (serving.thermalstate): how the run started and whether it is still WARMING."""
+    if not isinstance(thermal, dict):
+        return []
+    warming = thermal.get("warming")
+    bound = thermal.get("bound_dph")
+    return [f"thermal state: {thermal.get('started') or 'waiting for the first temperature'}"
+            f"{', WARMING' + (f' (bound {bound:.2g} deg/h)' if isinstance(bound, (int, float)) else '') if warming else ''}, "
+            f"{thermal.get('history_points')} points of history, state file {thermal.get('state_file') or 'none'}"]
