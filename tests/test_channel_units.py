@@ -9,7 +9,6 @@ from pathlib import Path
 
 import matplotlib
 import pytest
-from imu_runs import write_imu_run
 
 from fogd.cli import replay as replay_cli
 from fogd.cli import train as train_cli
@@ -22,13 +21,8 @@ SMALL_SWARM = ["--particles", "4", "--iterations", "2"]
 
 
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory) -> dict[str, Path]:
-    out = tmp_path_factory.mktemp("imu-units")
-    return {
-        "heat": write_imu_run(out / "heat.csv", "fast-ramp", 1),
-        "cool": write_imu_run(out / "cool.csv", "cool-40-to-0", 2),
-        "check": write_imu_run(out / "check.csv", "fast-cycle", 3),
-    }
+def runs(imu_runs) -> dict[str, Path]:
+    return imu_runs  # tests/conftest.py's, written once per session
 
 
 @pytest.fixture

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from imu_runs import write_channel_run, write_imu_run
+from imu_runs import write_channel_run
 
 from fogd.cli import replay as replay_cli
 from fogd.cli import train as train_cli
@@ -23,13 +23,9 @@ FITTED_KEYS = ("method", "inputs", "input_scaling", "output_scaling", "domain", 
 
 
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory) -> dict[str, Path]:
+def runs(imu_runs, tmp_path_factory) -> dict[str, Path]:
     out = tmp_path_factory.mktemp("imu")
-    paths = {
-        "heat": write_imu_run(out / "heat.csv", "fast-ramp", 1),
-        "cool": write_imu_run(out / "cool.csv", "cool-40-to-0", 2),
-        "check": write_imu_run(out / "check.csv", "fast-cycle", 3),
-    }
+    paths = dict(imu_runs)  # tests/conftest.py's, written once per session
     for channel in CHOSEN:
         for name in ("heat", "cool", "check"):
             paths[f"{name}-{channel}"] = write_channel_run(out / f"{name}-{channel}.csv", paths[name], channel)

@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from stopping import stop
+from progress import STALL_S, wait_for_exit, wait_until, watching
+from stopping import stop_timed
 from test_hardening import model_document
 
 from fogd.cli import replay
@@ -78,17 +79,16 @@ class Fogd:
     def stderr(self) -> str:
         return self.stderr_path.read_text()
 
-    def wait_for(self, text: str, timeout_s: float = 10.0) -> None:
-        deadline = time.monotonic() + timeout_s
-        while text not in self.stderr:
-            assert self.process.poll() is None, f"fogd exited early: {self.stderr}"
-            assert time.monotonic() < deadline, f"fogd never said {text!r}: {self.stderr}"
-            time.sleep(0.02)
+    def wait_for(self, text: str, timeout_s: float = STALL_S) -> None:
+        """Until fogd has said `text`; fails when it exits first, or when neither its log nor its CPU time has
+        moved for `timeout_s` (at least STALL_S: a wait on progress, not a deadline)."""
+        wait_until(lambda: text in self.stderr, watching([self.stderr_path], [self.process]), f"fogd never said {text!r}",
+                   max(timeout_s, STALL_S), alive=[self.process], said=lambda: self.stderr)  # fmt: skip
 
     def terminate(self, timeout_s: float = 10.0) -> tuple[int, float]:
-        started = time.monotonic()
-        status = stop(self.process, lambda: self.stderr, timeout_s)
-        return status, time.monotonic() - started
+        """SIGTERM: the exit status and the seconds fogd slept stopping (waiting on a timeout, say; time spent
+        waiting for a CPU on a busy machine is not counted)."""
+        return stop_timed(self.process, lambda: self.stderr, timeout_s)
 
     def counters(self) -> dict:
         line = next(line for line in self.stderr.splitlines() if line.startswith("fogd.status: counters "))
@@ -101,6 +101,9 @@ class Fogd:
 
 
 EMU = [sys.executable, "-m", "fogd.cli.emu"]
+# fogd-emu waits at most this long at its end for the reader to take what it wrote (closing the pty earlier
+# throws those bytes away): it returns as soon as the reader has, and a loaded reader can take seconds
+DRAIN_S = "600"
 
 
 class Emu:
@@ -113,13 +116,15 @@ class Emu:
         self.path = str(tmp_path / "fog0")
         pacing = [] if "--speed" in options else ["--fast"]
         command = [*EMU, "--csv", str(run_csv), "--protocol", protocol, *pacing, "--wait-reader", "--link", self.path,
-                   "--temp-rate-hz", "250", "--ledger", str(self.ledger), *options]  # fmt: skip
+                   "--temp-rate-hz", "250", "--ledger", str(self.ledger), "--drain-s", DRAIN_S, *options]  # fmt: skip
         self.process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         assert self.process.stdout.readline().strip(), self.process.stderr.read()
 
-    def finish(self, timeout_s: float = 20.0) -> list[dict]:
-        """Wait for the end of the run; the ledger's lines."""
-        assert self.process.wait(timeout_s) == 0, self.process.stderr.read()
+    def finish(self, timeout_s: float = STALL_S) -> list[dict]:
+        """Wait for the end of the run (while the emulator makes progress: a slow reader slows it); the ledger's
+        lines."""
+        status = wait_for_exit(self.process, "fogd-emu", max(timeout_s, STALL_S), watching([self.ledger]))
+        assert status == 0, self.process.stderr.read()
         return [json.loads(line) for line in self.ledger.read_text().splitlines()]
 
     def kill(self) -> None:
@@ -141,12 +146,10 @@ def start_fogd(tmp_path: Path, port: str, model: Path, *args: str) -> Fogd:
     return fogd
 
 
-def wait_for_rows(path: Path, rows: int, timeout_s: float = 30.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    newline = b"\n"
-    while not path.exists() or path.read_bytes().count(newline) < rows:
-        assert time.monotonic() < deadline, f"{path}: fewer than {rows} rows after {timeout_s} s"
-        time.sleep(0.05)
+def wait_for_rows(path: Path, rows: int, timeout_s: float = STALL_S) -> None:
+    """Until `path` holds `rows` lines; fails when it has not grown for `timeout_s` (at least STALL_S)."""
+    wait_until(lambda: path.exists() and path.read_bytes().count(b"\n") >= rows, watching([path]),
+               f"{path}: fewer than {rows} rows", max(timeout_s, STALL_S))  # fmt: skip
 
 
 def run_samples(protocol: str, seed: int = 3) -> dict[str, np.ndarray]:
@@ -197,7 +200,7 @@ def assert_same_as_replay(output: np.ndarray, expected: np.ndarray) -> None:
 
 def stream_through_fogd(tmp_path: Path, model: Path, samples: dict, protocol: str) -> tuple[Path, Fogd, float]:
     """Send `samples` through the emulator of `protocol` and the real daemon (csv out), stop the daemon with
-    SIGTERM once every row is out; (the output file, the stopped daemon, seconds the stop took)."""
+    SIGTERM once every row is out; (the output file, the stopped daemon, seconds it slept stopping)."""
     run_csv, out = tmp_path / "run.csv", tmp_path / "out.csv"
     write_run(run_csv, samples)
     emu = Emu(tmp_path, run_csv, protocol)
@@ -206,20 +209,20 @@ def stream_through_fogd(tmp_path: Path, model: Path, samples: dict, protocol: st
         try:
             emu.finish()
             wait_for_rows(out, SAMPLES + 1)
-            status, took_s = fogd.terminate()
+            status, slept_s = fogd.terminate()
         finally:
             fogd.kill()
     finally:
         emu.kill()
     assert status == 0, fogd.stderr
-    return out, fogd, took_s
+    return out, fogd, slept_s
 
 
 @pytest.mark.parametrize("protocol", ["kvh-a", "fogd", "ascii"])
 def test_recorded_run_through_emulator_and_fogd_equals_replay(tmp_path, model_path, protocol):
     samples = run_samples(protocol)
-    out, fogd, took_s = stream_through_fogd(tmp_path, model_path, samples, protocol)
-    assert took_s < 4.0, fogd.stderr  # prompt, and short of the 5 s write timeout a stuck exit would wait for
+    out, fogd, slept_s = stream_through_fogd(tmp_path, model_path, samples, protocol)
+    assert slept_s < 4.0, fogd.stderr  # prompt, and short of the 5 s write timeout a stuck exit would wait for
     assert out.read_text().splitlines()[0] == ",".join(OUT_COLUMNS)
     assert_same_as_replay(np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2), replayed(tmp_path, model_path, samples))
     counters = fogd.counters()
@@ -295,10 +298,7 @@ def test_same_output_is_kvh_with_compensated_z(tmp_path, gyro, model_path):
     fogd = start_fogd(tmp_path, gyro.path, model_path, "--out", str(out))
     try:
         gyro.write(b"".join(frames))
-        deadline = time.monotonic() + 15
-        while not out.exists() or out.stat().st_size < 36 * SAMPLES:
-            assert time.monotonic() < deadline
-            time.sleep(0.05)
+        wait_until(lambda: out.exists() and out.stat().st_size >= 36 * SAMPLES, watching([out]), "same output")
         assert fogd.terminate()[0] == 0
     finally:
         fogd.kill()
@@ -377,10 +377,10 @@ def test_sigterm_while_streaming_exits_zero_with_whole_rows_flushed(tmp_path, gy
     try:
         gyro.write(b"".join(wire_frames("kvh-a", run_samples("kvh-a"))))
         wait_for_rows(out, 100)
-        status, took_s = fogd.terminate()
+        status, slept_s = fogd.terminate()
     finally:
         fogd.kill()
-    assert status == 0 and took_s < 4.0  # prompt, and short of the 5 s write timeout
+    assert status == 0 and slept_s < 4.0  # prompt (asleep, not waiting for a CPU), short of the 5 s write timeout
     text = out.read_text()
     assert text.endswith("\n")
     assert text.count("\n") - 1 == fogd.counters()["writer"]["frames_written"]

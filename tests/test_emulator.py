@@ -8,8 +8,10 @@ import select
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -21,7 +23,8 @@ from fogd.core.runio import read_run
 from fogd.errors import DeviceError
 from fogd.protocols.kvh import DPH_PER_RAD_S
 from fogd.protocols.lexer import Lexer
-from fogd.simulation.emulator import Emulator, Faults, RunSource, SimSource, point_link
+from fogd.simulation import emulator as emulator_module
+from fogd.simulation.emulator import TICK_S, Emulator, Faults, RunSource, SimSource, point_link
 from fogd.simulation.profiles import Profile
 from fogd.simulation.simulator import Simulation
 
@@ -164,17 +167,44 @@ def test_link_points_to_the_slave_and_goes_at_the_end(run_csv: Path, tmp_path: P
     assert regular.read_text() == "keep me"
 
 
-def test_real_time_pacing_and_fast_mode():
+class InjectedClock(threading.Event):
+    """The emulator's clock and stop event in one: its time moves only when it waits, by what it asked for, so
+    its pacing is judged apart from how busy the machine is (the pty's drain still polls in real time)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.now_s = 0.0
+
+    def monotonic(self) -> float:
+        return self.now_s
+
+    def wait(self, timeout: float | None = None) -> bool:
+        self.now_s += timeout or 0.0
+        return self.is_set()
+
+
+def clocked_stream(emulator: Emulator, monkeypatch) -> tuple[list, float]:
+    """The frames `emulator` streams and the seconds its clock ran meanwhile (its waits)."""
+    clock = InjectedClock()
+    monkeypatch.setattr(emulator_module, "time", SimpleNamespace(monotonic=clock.monotonic, sleep=time.sleep))
+    emulator._stop = clock
+    frames, _ = lex("kvh-a", stream(emulator))
+    return frames, clock.now_s
+
+
+def test_real_time_pacing_and_fast_mode(monkeypatch):
+    """Paced, a stream ends when its data's last frame is due at its speed, within a tick (the clock injected);
+    fast, it never waits. On the real clock a paced stream never ends early (a busy machine may end it late)."""
     profile = Profile("short", ((10.0, 20.0),))
     started = time.monotonic()
     frames, _ = lex("kvh-a", stream(Emulator(SimSource(profile, 1000.0, 1), "kvh-a", count=200)))
-    assert 0.15 < time.monotonic() - started < 2.0 and len(frames) == 200
-    started = time.monotonic()
-    frames, _ = lex("kvh-a", stream(Emulator(SimSource(profile, 1000.0, 1), "kvh-a", count=1000, speed=5.0)))
-    assert 0.15 < time.monotonic() - started < 2.0 and len(frames) == 1000
-    started = time.monotonic()
-    frames, _ = lex("kvh-a", stream(Emulator(SimSource(profile, 1000.0, 1), "kvh-a", speed=None)))
-    assert time.monotonic() - started < 2.5 and len(frames) == 10001  # 10 s of data
+    assert len(frames) == 200 and time.monotonic() - started > 0.199
+    frames, ran_s = clocked_stream(Emulator(SimSource(profile, 1000.0, 1), "kvh-a", count=200), monkeypatch)
+    assert len(frames) == 200 and 0.199 <= ran_s <= 0.199 + 2 * TICK_S
+    frames, ran_s = clocked_stream(Emulator(SimSource(profile, 1000.0, 1), "kvh-a", count=1000, speed=5.0), monkeypatch)
+    assert len(frames) == 1000 and 0.1998 <= ran_s <= 0.1998 + 2 * TICK_S
+    frames, ran_s = clocked_stream(Emulator(SimSource(profile, 1000.0, 1), "kvh-a", speed=None), monkeypatch)
+    assert len(frames) == 10001 and ran_s == 0.0  # 10 s of data, not paced
 
 
 def faulted(protocol: str, run_csv: Path, tmp_path: Path, chunks: list[bytes] | None = None, **faults: float):

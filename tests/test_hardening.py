@@ -350,10 +350,10 @@ def test_hostile_configs_are_one_line_config_errors(tmp_path, text, message):
     keys took the last value, a newline in a string forged log lines."""
     path = tmp_path / "fogd.yaml"
     path.write_text(text)
-    started = time.monotonic()
+    started = time.process_time()  # CPU time: the bomb's expansion is work, and a busy machine's wait is not
     with pytest.raises(ConfigError, match=message) as error:
         config.load(str(path))
-    assert time.monotonic() - started < 5.0
+    assert time.process_time() - started < 5.0
     assert "\n" not in str(error.value) and len(str(error.value)) < 400
 
 

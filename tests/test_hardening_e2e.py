@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from progress import wait_until, watching
 from stopping import stop
 from test_daemon_e2e import (  # noqa: F401  # noqa: F401  (fixtures)
     FOGD,
@@ -134,11 +135,8 @@ def test_one_crafted_frame_no_longer_kills_the_daemon(tmp_path, gyro, model_path
         for frame in frames[:200] + crafted + frames[200:]:
             gyro.write(frame)
         rates = sum(frame.kind in ("rate", "imu") for frame in Lexer(get(protocol)).feed(b"".join(frames)))
-        deadline = time.monotonic() + 20
-        while not out.exists() or out.stat().st_size < rates * COMP_FRAME_LEN:  # every good frame, after the crafted
-            assert fogd.process.poll() is None, fogd.stderr
-            assert time.monotonic() < deadline, (out.stat().st_size if out.exists() else 0, fogd.stderr)
-            time.sleep(0.05)
+        wait_until(lambda: out.exists() and out.stat().st_size >= rates * COMP_FRAME_LEN, watching([out], [fogd.process]),
+                   "every good frame, after the crafted", alive=[fogd.process], said=lambda: fogd.stderr)  # fmt: skip
         assert fogd.terminate(timeout_s=10.0)[0] == 0
     finally:
         fogd.kill()

@@ -14,11 +14,11 @@ import json
 import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from progress import STALL_S, wait_for_exit, wait_until, watching
 from stopping import stop
 
 from fogd.cli import replay, top
@@ -39,6 +39,10 @@ RATE_HZ = 200.0
 COUNT = 1500
 UNITS = {"rate": [], "delta": ["--rotfmt", "delta", "--linfmt", "delta"]}
 FLOAT32 = 2.0**-23
+# --fast: fogd-emu writes as fast as fogd reads (the pty's back-pressure), whatever the machine's speed; at its end
+# it waits at most DRAIN_S for fogd to take the last bytes (closing the pty earlier would throw them away), and
+# returns as soon as fogd has
+DRAIN_S = "600"
 
 
 def run(command: list[str], cwd: Path) -> None:
@@ -59,11 +63,11 @@ def models(tmp_path_factory) -> dict[str, Path]:
     return {"all": where / "imu.json", "part": where / "part.json"}
 
 
-def wait_for(path: Path, predicate, what: str, timeout_s: float = 60.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not (path.exists() and predicate(path.read_bytes())):
-        assert time.monotonic() < deadline, f"{path}: no {what} after {timeout_s} s"
-        time.sleep(0.05)
+def wait_for(path: Path, predicate, what: str, process: subprocess.Popen, said) -> None:
+    """Until `path` holds `what`, while it grows or `process` works (a wait on progress: a loaded machine is
+    slower, not wrong); fails when `process` exits first."""
+    wait_until(lambda: path.exists() and predicate(path.read_bytes()), watching([path], [process]), f"{path}: no {what}",
+               STALL_S, alive=[process], said=said)  # fmt: skip
 
 
 def through_fogd(tmp_path: Path, model: Path, emu_options: list[str], fogd_options: list[str],
@@ -74,7 +78,7 @@ def through_fogd(tmp_path: Path, model: Path, emu_options: list[str], fogd_optio
     link, ledger, out = tmp_path / "imu0", tmp_path / "ledger.jsonl", tmp_path / "out"
     emu = subprocess.Popen([*EMU, "--profile", "fast-ramp", "--imu", "--rate-hz", str(RATE_HZ), "--seed", "4",
                             "--count", str(COUNT), "--fast", "--wait-reader", "--link", str(link), "--ledger",
-                            str(ledger), *emu_options], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+                            str(ledger), "--drain-s", DRAIN_S, *emu_options], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
     stderr_path = tmp_path / "fogd.stderr"
     fogd = None
     try:
@@ -83,8 +87,8 @@ def through_fogd(tmp_path: Path, model: Path, emu_options: list[str], fogd_optio
             fogd = subprocess.Popen([*FOGD, "--port", str(link), "--model", str(model), "--rate-hz", str(RATE_HZ),
                                      "--status-interval-s", "60", "--out", str(out), *fogd_options],
                                     stdout=subprocess.DEVNULL, stderr=stderr)  # fmt: skip
-        assert emu.wait(60) == 0, emu.stderr.read()
-        wait_for(out, done, "whole output")
+        assert wait_for_exit(emu, "fogd-emu", watch=watching([ledger, out], [fogd])) == 0, emu.stderr.read()
+        wait_for(out, done, "whole output", fogd, stderr_path.read_text)
         assert stop(fogd, stderr_path.read_text) == 0, stderr_path.read_text()
     finally:
         for process in (emu, fogd):

@@ -5,14 +5,14 @@ channels are the emulated ones to float32 wire precision. Bad combinations of op
 from __future__ import annotations
 
 import json
-import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from progress import wait_for_exit, wait_until, watching
+from stopping import stop
 
 from fogd.core.columns import ACCEL_CHANNELS, CHANNELS, GYRO_CHANNELS
 from fogd.core.runio import read_run
@@ -27,6 +27,7 @@ RECORD = [sys.executable, "-m", "fogd.cli.record"]
 RATE_HZ = 200.0
 COUNT = 600
 FLOAT32 = 2.0**-23  # relative spacing of float32: the wire's precision
+DRAIN_S = "600"  # fogd-emu's wait at its end for the reader to take the last bytes: over as soon as it has
 UNIT_OPTIONS = {
     "rate": [],
     "delta": ["--rotfmt", "delta", "--linfmt", "delta"],
@@ -34,11 +35,10 @@ UNIT_OPTIONS = {
 }
 
 
-def wait_for_rows(path: Path, rows: int, timeout_s: float = 60.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not path.exists() or path.read_bytes().count(b"\n") < rows:
-        assert time.monotonic() < deadline, f"{path}: fewer than {rows} lines after {timeout_s} s"
-        time.sleep(0.05)
+def wait_for_rows(path: Path, rows: int, process: subprocess.Popen) -> None:
+    """Until `path` holds `rows` lines, while it grows or `process` (its writer) works."""
+    wait_until(lambda: path.exists() and path.read_bytes().count(b"\n") >= rows, watching([path], [process]),
+               f"{path}: fewer than {rows} lines", alive=[process])  # fmt: skip
 
 
 def emulate_and_record(tmp_path: Path, source: list[str], emu_options: list[str], record_options: list[str],
@@ -47,17 +47,16 @@ def emulate_and_record(tmp_path: Path, source: list[str], emu_options: list[str]
     returns the emulator's ledger, the recorded CSV and fogd-record's stderr."""
     link, ledger, output = tmp_path / "imu0", tmp_path / "ledger.jsonl", tmp_path / "rec.csv"
     emu = subprocess.Popen([*EMU, *source, "--fast", "--wait-reader", "--link", str(link), "--ledger", str(ledger),
-                            *emu_options], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+                            "--drain-s", DRAIN_S, *emu_options], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
     record_err = open(tmp_path / "record.stderr", "w+b")
     record = None
     try:
         assert emu.stdout.readline().strip(), emu.stderr.read()
         record = subprocess.Popen([*RECORD, "--port", str(link), "-o", str(output), "--rate-hz", str(RATE_HZ),
                                    *record_options], stdout=subprocess.DEVNULL, stderr=record_err)  # fmt: skip
-        assert emu.wait(60) == 0, emu.stderr.read()
-        wait_for_rows(output, rows + 1)
-        record.send_signal(signal.SIGTERM)
-        assert record.wait(10) == 0
+        assert wait_for_exit(emu, "fogd-emu", watch=watching([ledger, output], [record])) == 0, emu.stderr.read()
+        wait_for_rows(output, rows + 1, record)
+        assert stop(record, (tmp_path / "record.stderr").read_text) == 0
     finally:
         for process in (emu, record):
             if process is not None and process.poll() is None:

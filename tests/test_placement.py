@@ -1,6 +1,8 @@
 """fogd.serving.placement: the `cpu` setting's words and numbers; the rule for moving off a busy CPU; real
-threads pinned, moved off a CPU another process keeps busy, and not moved for their own load; the real daemon
-keeps its threads on one CPU by default, on the CPU it is given, or lets the kernel place them (`any`)."""
+threads pinned, moved off a CPU other processes keep busy and not moved for their own load (the other
+processes' load injected into the rule, so the premise holds on a busy machine too); the real daemon keeps its
+threads on one CPU by default, on the CPU it is given, or lets the kernel place them (`any`), and moves off a
+CPU a real process takes where the machine has a CPU to spare."""
 
 from __future__ import annotations
 
@@ -14,11 +16,13 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from progress import wait_until, watching
 from test_daemon_e2e import SAMPLES, Pty, run_samples, start_fogd, wait_for_rows, wire_frames
 from test_hardening import model_document
 
@@ -114,7 +118,7 @@ def in_thread(function):
 
     thread = threading.Thread(target=run)
     thread.start()
-    thread.join(30)
+    thread.join()  # pytest-timeout bounds a hang
     if "error" in result:
         raise result["error"]
     return result.get("value")
@@ -149,13 +153,27 @@ def test_any_leaves_threads_where_the_kernel_puts_them():
     assert in_thread(body) == (None, allowed)
 
 
-def follow_for(kept: Placement, seconds: float, monkeypatch) -> None:
-    """Two checks `seconds` apart: the first opens a window, the second judges it."""
+class InjectedLoads:
+    """The placement rule's view of /proc/stat, injected: each CPU's busy seconds are what other processes took
+    (`others_share` of the injected clock's seconds) plus this process's threads on it, as the scheduler counts
+    them. The rule's premise (one CPU busy, another idle) then holds whatever else the machine runs."""
+
+    def __init__(self, others_share: dict[int, float]) -> None:
+        self.others_share = others_share
+        self.now_s = 0.0
+
+    def busy_s(self, allowed: frozenset[int]) -> dict[int, float]:
+        return {cpu: self.others_share.get(cpu, 0.0) * self.now_s + placement.threads_cpu_s(cpu) for cpu in allowed}
+
+
+def follow_under(kept: Placement, loads: InjectedLoads, window_s: Callable[[], float], monkeypatch) -> None:
+    """Two checks of `kept` under injected `loads`: the first opens a window, the second judges it, `window_s()`
+    seconds of the injected clock later (asked when the second check is due)."""
+    monkeypatch.setattr(placement, "cpu_busy_s", loads.busy_s)
     monkeypatch.setattr(placement, "CHECK_EVERY_S", 0.0)
-    start_s = time.monotonic()
-    kept.follow(start_s)
-    time.sleep(seconds)
-    kept.follow(time.monotonic())
+    kept.follow(loads.now_s)
+    loads.now_s += window_s()
+    kept.follow(loads.now_s)
 
 
 @contextlib.contextmanager
@@ -169,45 +187,81 @@ def hog_process(cpu: int):
         hog.wait()
 
 
-@contextlib.contextmanager
-def own_busy_thread(cpu: int):
-    """A busy thread of this process, started on the pinned thread: it inherits `cpu` (fogd's own load)."""
-    stop = threading.Event()
-    spinner = threading.Thread(target=spin_in_c, args=(stop,))
-    spinner.start()
-    try:
-        yield
-    finally:
-        stop.set()
-        spinner.join()
-
-
-def followed_under(load, monkeypatch) -> tuple[int, int, int, set[int]]:
-    """A thread kept on a CPU by `auto`, with `load` on that CPU through two checks: (its first CPU, its CPU
-    now, moves, the thread's own affinity now)."""
+@two_cpus
+def test_threads_move_off_a_cpu_other_processes_keep_busy(monkeypatch):
+    """Other processes took 90 % of the CPU the threads are kept on and 10 % of every other: the thread that
+    started the placement and a thread it started are both re-pinned to the least busy other CPU."""
 
     def body():
         kept = Placement(AUTO)
         kept.start()
         first = kept.cpu
-        with load(first):
-            time.sleep(0.3)  # the load is running
-            follow_for(kept, 1.5, monkeypatch)
-        return first, kept.cpu, kept.moves, os.sched_getaffinity(0)
+        others = {cpu: 0.9 if cpu == first else 0.1 + 0.01 * cpu for cpu in kept.allowed}
+        stop, seen = threading.Event(), {}
 
-    return in_thread(body)
+        def child() -> None:
+            stop.wait()
+            seen["cpus"] = os.sched_getaffinity(0)
+
+        started = threading.Thread(target=child)
+        started.start()
+        try:
+            follow_under(kept, InjectedLoads(others), lambda: 1.0, monkeypatch)
+        finally:
+            stop.set()
+            started.join()
+        return first, kept.cpu, kept.moves, os.sched_getaffinity(0), seen["cpus"], others
+
+    first, now, moves, own, child, others = in_thread(body)
+    assert now == min((cpu for cpu in others if cpu != first), key=lambda cpu: others[cpu]) and moves == 1
+    assert own == child == {now}  # the threads themselves were re-pinned, not only the record
 
 
 @two_cpus
-def test_threads_move_off_a_cpu_another_process_keeps_busy(monkeypatch):
-    first, now, moves, own = followed_under(hog_process, monkeypatch)
-    assert now != first and moves == 1
-    assert own == {now}  # the thread itself was re-pinned, not only the record
+def test_threads_stay_when_other_processes_keep_every_cpu_busy(monkeypatch):
+    def body():
+        kept = Placement(AUTO)
+        kept.start()
+        first = kept.cpu
+        follow_under(kept, InjectedLoads({cpu: 0.9 if cpu == first else 0.7 for cpu in kept.allowed}), lambda: 1.0,
+                     monkeypatch)  # fmt: skip
+        return first, kept.cpu, kept.moves, os.sched_getaffinity(0)
+
+    first, now, moves, own = in_thread(body)
+    assert (now, moves, own) == (first, 0, {first})
+
+
+OWN_CPU_S = 0.3  # CPU seconds the daemon's own busy thread takes before the rule judges the window
 
 
 @two_cpus
 def test_the_daemons_own_load_does_not_make_it_move(monkeypatch):
-    first, now, moves, own = followed_under(own_busy_thread, monkeypatch)
+    """A busy thread of this process on the kept CPU, and no other process anywhere: the CPU is fully busy over
+    the window the rule judges (the injected clock advances by what the thread took), all of it ours, so the
+    threads stay."""
+
+    def body():
+        kept = Placement(AUTO)
+        kept.start()
+        first = kept.cpu
+        stop = threading.Event()
+        spinner = threading.Thread(target=spin_in_c, args=(stop,))  # started on the pinned thread: inherits its CPU
+        spinner.start()
+        try:
+            start_s = placement.threads_cpu_s(first)
+
+            def ours_s() -> float:  # wait on the spinner's progress, not on the clock
+                while placement.threads_cpu_s(first) - start_s < OWN_CPU_S:
+                    time.sleep(0.02)
+                return placement.threads_cpu_s(first) - start_s
+
+            follow_under(kept, InjectedLoads({}), ours_s, monkeypatch)
+        finally:
+            stop.set()
+            spinner.join()
+        return first, kept.cpu, kept.moves, os.sched_getaffinity(0)
+
+    first, now, moves, own = in_thread(body)
     assert (now, moves, own) == (first, 0, {first})
 
 
@@ -229,11 +283,10 @@ def model_path(tmp_path) -> Path:
     return path
 
 
-def stats_when_written(stats: Path, timeout_s: float = 10.0) -> dict:
+def stats_when_written(stats: Path, fogd) -> dict:
     """The daemon's stats file, once it has written one."""
-    deadline = time.monotonic() + timeout_s
-    while not stats.exists() and time.monotonic() < deadline:
-        time.sleep(0.05)
+    wait_until(stats.exists, watching([stats], [fogd.process]), "the stats file", alive=[fogd.process],
+               said=lambda: fogd.stderr)  # fmt: skip
     return json.loads(stats.read_text())
 
 
@@ -247,7 +300,7 @@ def run_daemon(tmp_path: Path, model: Path, *args: str) -> tuple[int, dict[int, 
         gyro.write(b"".join(wire_frames("kvh-a", run_samples("kvh-a"))))
         wait_for_rows(out, SAMPLES + 1)
         cpus = thread_cpus(fogd.process.pid)
-        snapshot = stats_when_written(stats)
+        snapshot = stats_when_written(stats, fogd)
         assert fogd.terminate()[0] == 0
     finally:
         fogd.kill()
@@ -311,24 +364,54 @@ def test_the_daemon_refuses_a_cpu_it_may_not_use_in_one_line(tmp_path):
     assert "Traceback" not in done.stderr and len(done.stderr.strip().splitlines()) <= 3
 
 
+CLEAR = 0.15  # how far past the rule's thresholds a window this test measures must be to count as the premise
+HELD_WINDOWS = 4  # windows of CHECK_EVERY_S in a row with the premise: every check of the daemon's had it
+LOOK_WINDOWS = 6  # windows to look for the premise in before skipping
+
+
+def premise(share: dict[int, float], first: int) -> bool:
+    """Over a window this test measured: `first` clearly busier than BUSY_SHARE, another CPU clearly MARGIN less."""
+    least = min(share[cpu] for cpu in share if cpu != first)
+    return share[first] > BUSY_SHARE + CLEAR and least < share[first] - MARGIN - CLEAR
+
+
 @two_cpus
 def test_the_daemon_moves_off_a_cpu_another_process_takes(tmp_path, model_path):
     """The daemon's loop looks every CHECK_EVERY_S: a process spinning on its CPU moves its threads, with one
-    warning that names both CPUs, and every thread goes along."""
+    warning that names both CPUs, and every thread goes along. The premise, another CPU clearly less busy,
+    is the machine's: the test measures each CPU's load over windows as the daemon does, fails when the premise
+    held over HELD_WINDOWS windows in a row and the daemon stayed, and skips when every CPU stays busy."""
     stats, gyro = tmp_path / "stats.json", Pty()
     fogd = start_fogd(tmp_path, gyro.path, model_path, "--stats-file", str(stats))
+    windows: list[dict[int, float]] = []
     try:
-        first = stats_when_written(stats)["cpu"]["on"]
+        first = stats_when_written(stats, fogd)["cpu"]["on"]
+        allowed = frozenset(os.sched_getaffinity(0))
         with hog_process(first):
-            deadline = time.monotonic() + 4 * placement.CHECK_EVERY_S
-            while json.loads(stats.read_text())["cpu"]["moves"] == 0 and time.monotonic() < deadline:
+            held, opened = 0, (time.monotonic(), placement.cpu_busy_s(allowed))
+            while json.loads(stats.read_text())["cpu"]["moves"] == 0:
+                assert fogd.process.poll() is None, fogd.stderr
                 time.sleep(0.2)
+                now_s = time.monotonic()
+                if now_s - opened[0] < placement.CHECK_EVERY_S:
+                    continue
+                busy_s = placement.cpu_busy_s(allowed)
+                windows.append({cpu: (busy_s[cpu] - opened[1][cpu]) / (now_s - opened[0]) for cpu in busy_s})
+                held = held + 1 if premise(windows[-1], first) else 0
+                opened = (now_s, busy_s)
+                assert held < HELD_WINDOWS, f"CPU {first} busy, another idle, and fogd stayed: {windows}"
+                if len(windows) >= LOOK_WINDOWS and json.loads(stats.read_text())["cpu"]["moves"] == 0:
+                    break
             cpu = json.loads(stats.read_text())["cpu"]
             cpus = thread_cpus(fogd.process.pid)
         assert fogd.terminate()[0] == 0
     finally:
         fogd.kill()
         gyro.close()
+    if cpu["moves"] == 0:
+        shares = "; ".join(", ".join(f"CPU {c} {100 * s:.0f} %" for c, s in sorted(w.items())) for w in windows)
+        pytest.skip(f"every CPU stayed busy (no other CPU {100 * MARGIN:.0f} points less busy than CPU {first} "
+                    f"with a process spinning on it), over windows of {placement.CHECK_EVERY_S:g} s: {shares}")  # fmt: skip
     assert cpu["moves"] == 1 and cpu["on"] != first
     assert cpus[fogd.process.pid] == str(cpu["on"]) and str(first) not in cpus.values()
     assert f"CPU {first} busy: other processes took" in fogd.stderr

@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import time
 import tty
+from pathlib import Path
 
 from fogd.protocols import get
 from fogd.protocols.base import ALL_AXES, Frame
@@ -31,13 +32,18 @@ def wait_for(condition, timeout_s: float = 5.0) -> bool:
     return False
 
 
-def pty_reader() -> tuple[int, str, Reader]:
+def pty_reader(link: Path | None = None) -> tuple[int, str, Reader]:
+    """A reader on a new pty; it reopens through `link` (made to point at the pty) when given: a /dev/pts number
+    is reused by the next pty anyone opens, and other tests run beside this one."""
     master, slave = os.openpty()
     tty.setraw(master)
     path = os.ttyname(slave)
     port = open_port(path, 921600)
     os.close(slave)  # the reader's port is the only slave left open
-    reader = Reader(lambda: open_port(path, 921600), Lexer(KVH), Ring(64), port=port)
+    if link is not None:
+        link.symlink_to(path)
+    reopen = str(link or path)
+    reader = Reader(lambda: open_port(reopen, 921600), Lexer(KVH), Ring(64), port=port)
     return master, path, reader
 
 
@@ -62,13 +68,15 @@ def test_frames_written_together_arrive_as_one_read_in_order():
         os.close(master)
 
 
-def test_a_port_that_goes_away_is_counted_once_and_the_reader_waits_for_it():
-    master, _, reader = pty_reader()
+def test_a_port_that_goes_away_is_counted_once_and_the_reader_waits_for_it(tmp_path):
+    link = tmp_path / "gyro"
+    master, _, reader = pty_reader(link)
     try:
         reader.start()
         os.write(master, kvh_frame(0))
         assert wait_for(lambda: len(reader.ring) == 1)
-        os.close(master)  # the device is gone: the slave reads EIO or hang-up
+        link.unlink()  # the device is gone, its link too (its /dev/pts number may be another pty's next)
+        os.close(master)  # the slave reads EIO or hang-up
         master = -1
         assert wait_for(lambda: reader.counters.disconnects == 1)
         time.sleep(0.3)

@@ -1,14 +1,13 @@
 """fogd-record on the emulator's pty: the CSV it writes reads back with fogd.core.runio.read_run and holds the
 values the emulator sent, also across an unplug; SIGTERM stops it cleanly."""
 
-import signal
 import subprocess
 import sys
-import time
 from collections.abc import Callable
 
 import numpy as np
 import pytest
+import stopping
 from test_daemon_e2e import RATE_HZ, Emu, run_samples, wait_for_rows, write_run
 
 from fogd.core.runio import Run, read_run
@@ -29,9 +28,8 @@ def sent_valid(ledger: list[dict]) -> list[dict]:
     return [line for line in ledger if line["sent"] and line["valid"] and line["kind"] in ("imu", "rate")]
 
 
-def stop(process: subprocess.Popen) -> int:
-    process.send_signal(signal.SIGTERM)
-    return process.wait(5)
+def stop(process: subprocess.Popen, tmp_path) -> int:
+    return stopping.stop(process, (tmp_path / "record.stderr").read_text)
 
 
 def record_emulated(tmp_path, samples: dict, protocol: str, rows: Callable[[list], int], *options: str) -> Run:
@@ -43,7 +41,7 @@ def record_emulated(tmp_path, samples: dict, protocol: str, rows: Callable[[list
     try:
         ledger = emu.finish()
         wait_for_rows(tmp_path / "rec.csv", rows(ledger) + 1)
-        assert stop(process) == 0
+        assert stop(process, tmp_path) == 0
     finally:
         emu.kill()
         if process.poll() is None:
@@ -85,7 +83,7 @@ def test_record_survives_an_unplug(tmp_path):
         ledger = emu.finish()
         expected = sent_valid(ledger)
         wait_for_rows(tmp_path / "rec.csv", len(expected) + 1)
-        assert stop(process) == 0
+        assert stop(process, tmp_path) == 0
     finally:
         emu.kill()
         if process.poll() is None:

@@ -22,7 +22,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from stopping import stop
+from progress import STALL_S, watching
+from stopping import stop_timed
 from test_daemon_e2e import (  # noqa: F401
     FOGD,
     RATE_HZ,
@@ -109,13 +110,16 @@ def test_notify_status_metrics_and_sigterm(tmp_path, model_path):
         )  # fmt: skip
     messages: list[str] = []
     try:
-        deadline = time.monotonic() + 20
+        progress, moved = watching([stderr_path], [process]), time.monotonic()  # wait on progress, not a deadline
+        last = progress()
         while sum(m == "WATCHDOG=1" for m in messages) < 4 or not any(m.startswith("STATUS=") and "samples" in m and not m.startswith("STATUS=0 ") for m in messages):
-            assert time.monotonic() < deadline and process.poll() is None, (messages, stderr_path.read_text())
+            assert time.monotonic() - moved < STALL_S and process.poll() is None, (messages, stderr_path.read_text())
             try:
                 messages += listener.recv(4096).decode().split("\n")
+                moved = time.monotonic()
             except TimeoutError:
-                pass
+                if progress() != last:
+                    last, moved = progress(), time.monotonic()
         assert "READY=1" in messages
         assert messages.index("READY=1") < messages.index("WATCHDOG=1")
         status = subprocess.run([*FOGD, "--status", "--stats-file", str(stats)], capture_output=True, text=True, timeout=30)
@@ -123,9 +127,8 @@ def test_notify_status_metrics_and_sigterm(tmp_path, model_path):
         with urllib.request.urlopen(f"http://127.0.0.1:{metrics_port}/metrics", timeout=5) as response:
             metrics = response.read().decode()
         assert 'fogd_frames_in_total{kind="imu"}' in metrics and "fogd_connected 1.0" in metrics
-        started = time.monotonic()
-        assert stop(process, stderr_path.read_text, 5) == 0
-        assert time.monotonic() - started < 2.0
+        status, slept_s = stop_timed(process, stderr_path.read_text, 5)
+        assert status == 0 and slept_s < 2.0  # prompt: asleep, not waiting for a CPU on a busy machine
     finally:
         if process.poll() is None:
             process.kill()
@@ -191,11 +194,10 @@ def test_twenty_unplugs_and_replugs(tmp_path, model_path):
     try:
         fogd = start_fogd(tmp_path, emu.path, model_path, "--protocol", "fogd", "--out-format", "csv", "--out", str(out))
         try:
-            deadline = time.monotonic() + 40
-            while replugs < 20:
+            while replugs < 20:  # each replug is the emulator's progress
                 assert emu.process.stdout.readline(), emu.process.stderr.read()
                 replugs += 1
-                assert fogd.process.poll() is None and time.monotonic() < deadline
+                assert fogd.process.poll() is None
             time.sleep(0.3)  # frames of the last connection
             emu.process.send_signal(signal.SIGTERM)
             ledger = emu.finish()
