@@ -48,9 +48,9 @@ from fogd.serving.ring import Ring
 from fogd.serving.serialio import PortOpener
 
 
-def read_fifo(fd: int, into: bytearray, stop: threading.Event, stall_s: float) -> None:
-    """A consumer that takes nothing for `stall_s`, then everything until the writer closes the FIFO."""
-    time.sleep(stall_s)
+def read_fifo(fd: int, into: bytearray, stop: threading.Event, release: threading.Event) -> None:
+    """A consumer that takes nothing until `release`, then everything until the writer closes the FIFO."""
+    release.wait()
     while True:
         try:
             data = os.read(fd, 65536)
@@ -66,6 +66,26 @@ def read_fifo(fd: int, into: bytearray, stop: threading.Event, stall_s: float) -
         into.extend(data)
 
 
+def stats_counters(stats: Path) -> dict:
+    """The daemon's counters by its stats file (empty before the first write)."""
+    try:
+        return json.loads(stats.read_text())["counters"]
+    except (OSError, ValueError, KeyError):
+        return {}
+
+
+def writer_drops(stats: Path) -> int:
+    """Frames the daemon's writer has dropped for a full queue or a write timeout."""
+    writer = stats_counters(stats).get("writer", {})
+    return writer.get("frames_dropped_full", 0) + writer.get("frames_dropped_timeout", 0)
+
+
+def settled(stats: Path, frames_in: int) -> bool:
+    """Every one of `frames_in` decoded frames written, used or dropped: nothing pending anywhere."""
+    balance = stats_counters(stats).get("balance", {})
+    return balance.get("in") == frames_in and sum(balance.get("pending", {"-": 1}).values()) == 0
+
+
 @pytest.mark.parametrize("out_format", ["jsonl", "csv"])
 def test_a_stalling_consumer_gets_whole_frames_and_every_frame_is_counted(tmp_path, gyro, model_path, out_format):
     """Issue 11.1: a consumer stalling for 4 s got `{"t_s":5.024,"rate_dph":11.31,"temp_c"{"t_s":5.027,...}`
@@ -73,21 +93,31 @@ def test_a_stalling_consumer_gets_whole_frames_and_every_frame_is_counted(tmp_pa
     fifo = tmp_path / "out.fifo"
     os.mkfifo(fifo)
     reader_fd = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)
-    received, stop = bytearray(), threading.Event()
-    consumer = threading.Thread(target=read_fifo, args=(reader_fd, received, stop, 3.0))
+    received, stop, release = bytearray(), threading.Event(), threading.Event()
+    consumer = threading.Thread(target=read_fifo, args=(reader_fd, received, stop, release))
     consumer.start()
-    fogd = start_fogd(tmp_path, gyro.path, model_path, "--protocol", "fogd", "--out-format", out_format, "--out", str(fifo))
+    stats = tmp_path / "stats.json"
+    fogd = start_fogd(tmp_path, gyro.path, model_path, "--protocol", "fogd", "--out-format", out_format, "--out", str(fifo),
+                      "--stats-file", str(stats))  # fmt: skip
     try:
         samples = run_samples("fogd")
         for frame in wire_frames("fogd", samples):
             gyro.write(frame)
         gyro.write(b"\xf0\x0d\x01")  # the start of a frame that never ends: held by the lexer at stop
-        time.sleep(5.0)  # the consumer is back and the writer has caught up
+        # the consumer stalls until the stall has cost frames, however slowly a busy machine runs fogd
+        moving = lambda: json.dumps(stats_counters(stats))  # noqa: E731  (progress: any counter moving)
+        wait_until(lambda: writer_drops(stats) > 0, moving, "no frame dropped while the "
+                   "consumer stalled", alive=[fogd.process], said=lambda: fogd.stderr)  # fmt: skip
+        release.set()
+        frames_in = len(samples["t_s"]) * 5 // 4  # rate frames and a temperature frame every 4th
+        wait_until(lambda: settled(stats, frames_in), moving, "the writer never caught up",
+                   alive=[fogd.process], said=lambda: fogd.stderr)  # fmt: skip
         status, _ = fogd.terminate(timeout_s=15.0)
         assert status == 0
         stop.set()
         consumer.join(20.0)
     finally:
+        release.set()
         fogd.kill()
         os.close(reader_fd)
     counters = fogd.counters()
@@ -106,7 +136,7 @@ def test_a_stalling_consumer_gets_whole_frames_and_every_frame_is_counted(tmp_pa
     assert writer["frames_dropped_timeout"] + writer["frames_dropped_full"] > 0  # the stall did cost frames
     assert writer["frames_written"] == len(lines) == balance["out"]
     assert balance["adds_up"] and sum(balance["pending"].values()) == 0
-    assert balance["in"] == len(samples["t_s"]) * 5 // 4  # rate frames and a temperature frame every 4th
+    assert balance["in"] == frames_in
     lexer = counters["lexer"]
     assert lexer["frame_bytes"] + lexer["garbage_bytes"] == counters["reader"]["bytes_in"]  # the held 3 bytes too
 
