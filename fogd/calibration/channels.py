@@ -22,6 +22,7 @@ from typing import Any
 from joblib import Parallel, delayed
 
 from fogd.calibration.features import Inputs, run_inputs, shared_inputs
+from fogd.calibration.ladder import climb
 from fogd.calibration.models import METHODS
 from fogd.calibration.models.folds import MIN_RUNS_LEFT_OUT, drift_rmse
 from fogd.calibration.replay import replay, replay_table
@@ -44,6 +45,9 @@ class Settings:
     auto: bool = False
     compare: bool = False
     log: bool = True  # --method auto's progress lines
+    ladder: bool = False  # the default: the model chosen from fogd.calibration.ladder's rungs
+    average_s: float = 0.5  # the eq. 16 estimator's, for the ladder's rate inputs
+    step_s: float = 0.0
 
 
 @dataclass
@@ -166,7 +170,19 @@ def _fit(job: ChannelJob, settings: Settings, result: ChannelFit) -> None:
     unit = channel_unit(job.channel)
     config = dataclasses.replace(config, unit=unit)
     runs = job.runs
-    if settings.auto:
+    if settings.ladder:
+        ladder = climb(runs, config, log=say.err if settings.log else None, unit=unit,
+                       average_s=settings.average_s, step_s=settings.step_s)  # fmt: skip
+        result.label = f"ladder: {ladder.chosen.rung.name}"
+        result.trained = {ladder.chosen.rung.method: ladder.trained}
+        result.chosen = ladder.trained
+        result.chosen.document["metrics"]["held_out"] = ladder.held_out()
+        result.chosen.document["training"]["ladder"] = {"rule": "one standard error", "folds": ladder.folds,
+                                                        "rungs": [s.row() for s in ladder.scored]}  # fmt: skip
+        result.selection = None
+        say.out(ladder.line(unit))
+        result.held_out_dph = ladder.chosen.drift_rmse_dph
+    elif settings.auto:
         best, candidates = select(runs, config, settings.sets, log=say.err if settings.log else None, unit=unit)
         result.label = f"auto: {best.label}"
         result.trained = {result.label: best.trained}
