@@ -38,7 +38,7 @@ from fogd.core.compensator import Compensated
 from fogd.core.estimator import SCALAR_CHUNK
 from fogd.core.flags import Flag, describe
 from fogd.core.frozen import FrozenModel
-from fogd.core.modelfile import check_rate, printable
+from fogd.core.modelfile import check_rate, held_out, printable
 from fogd.errors import ConfigError, FogdError
 from fogd.protocols.base import Frame
 from fogd.serving.channels import ChannelPlan, as_models, method, plan
@@ -653,7 +653,7 @@ class Daemon:
             "time_unix_s": time.time(),
             "uptime_s": now_s - self.started_s,
             "connected": bool(getattr(self.reader, "connected", True)),
-            "model": {"name": self.model.name, "method": method(self.models)},
+            "model": {"name": self.model.name, "method": method(self.models), "held_out": held_out(self.models)},
             "channels": {"compensated": list(self.plan.covered), "passed": list(self.plan.passed)},
             "cpu": self.placement.describe(),
             "latest": asdict(self.latest),
