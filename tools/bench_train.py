@@ -154,6 +154,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     argv = sys.argv[1:] if argv is None else argv
     swarm = ("20", "20") if args.quick else ("60", "100")
+    top = header(argv)  # the commit as measured, before anything else changes
     print(machine(), flush=True)
     rows, lines_chosen, ok = [], [], True
     with tempfile.TemporaryDirectory() as folder:
@@ -187,7 +188,7 @@ def main(argv: list[str] | None = None) -> int:
     print_table(title, head, rows)
     print("\nWhat the ladder chose (fogd-train's line, --jobs 1):\n" + "\n".join(lines_chosen))
     if not args.quick:
-        lines = header(argv) + [f"## {title}", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        lines = top + [f"## {title}", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         lines += ["| " + " | ".join(str(cell) for cell in row) + " |" for row in rows]
         lines += ["", "What the ladder chose (fogd-train's line, --jobs 1):", "", *lines_chosen]
         lines += ["", __doc__.split("\n\n", 1)[1].split("\n\n    python")[0].strip(), ""]
