@@ -78,8 +78,8 @@ def parser() -> ArgumentParser:
                    "units: a list of {name, runs, channels (optional), holdout (optional), out (optional)}, "
                    "paths relative to the manifest")  # fmt: skip
     p.add_argument(
-        "--method", choices=("ladder", *METHODS, "auto"), default="ladder",
-        help="model family; ladder (the default): the simplest of linear [temp,rate@50] (IEEE 952), its static curve, "
+        "--method", choices=("ladder", *METHODS, "auto"), default=None,
+        help="model family (default: ladder; pso-svr when --inputs or --compare is given); ladder: the simplest of linear [temp,rate@50] (IEEE 952), its static curve, "
         "the coil trend over the lag bank and that trend under PSO-SVR whose held-out drift is within one standard "
         "error of the best's (leave-one-run-out with two runs or more, else --folds time folds a lag apart; it says "
         "what it chose and why in one line, and the model file keeps the estimate); auto: choose the family and the input set by nested held-out error (leave-one-run-out, "
@@ -185,6 +185,7 @@ def parser() -> ArgumentParser:
 
 def body(argv: Sequence[str] | None) -> int:
     args = parser().parse_args(argv)
+    args.method = args.method or ("pso-svr" if args.inputs or args.compare else "ladder")
     units = _units(args)
     for unit in units:
         if unit.out:
@@ -215,8 +216,7 @@ def body(argv: Sequence[str] | None) -> int:
     if args.auto_inputs and not auto:
         raise UsageError("--auto-inputs goes with --method auto")
     if ladder and (args.compare or args.inputs):
-        raise UsageError("the default ladder chooses the model and its inputs; give --method (e.g. pso-svr) with "
-                         "--compare or --inputs")  # fmt: skip
+        raise UsageError("the ladder chooses the model and its inputs; --compare and --inputs go with another --method")
     if auto and args.compare:
         raise UsageError("--compare fits every method on one input set; --method auto already compares them all")
     for loaded in (each for runs in unit_runs for each in runs):
