@@ -207,7 +207,8 @@ def test_manifest_through_joblibs_dask_backend_on_a_local_cluster(runs, tmp_path
     path = manifest(tmp_path, runs, UNITS)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
             Client(cluster) as client, parallel_config(backend="dask"):  # fmt: skip
-        status, _, err = main(train_cli, ["--manifest", path, "--particles", "6", "--iterations", "4", "--jobs", "2", "-q"], capsys)
+        status, _, err = main(train_cli, ["--manifest", path, "--method", "pso-svr", "--particles", "6", "--iterations", "4",
+                                          "--jobs", "2", "-q"], capsys)  # fmt: skip
         assert client.run(lambda: 1)  # the workers were there all along
     assert status == 0, err
     imu = modelfile.load_channels(tmp_path / "imu-1.json")

@@ -181,3 +181,23 @@ def test_status_and_top_show_the_held_out_estimate():
            "accel_z_g": {"drift_rmse": 3e-5, "spread": 1e-5, "folds": "f"}}  # fmt: skip
     assert "rate_x_dph 0.002 ± 0.001 deg/h, accel_z_g 3e-05 ± 1e-05 g" in statsfile.describe(snapshot(imu))
     assert "not in the model file" in statsfile.describe(snapshot({}))
+
+
+def test_fogd_train_by_default_says_what_it_chose_in_one_line_and_keeps_the_estimate(tmp_path, capsys):
+    from fogd.cli import train as train_cli
+
+    paths = []
+    for seed, knots in enumerate((HEAT, COOL, CYCLE), start=1):
+        run = make_run(knots, coil_gradient, seed)
+        paths.append(tmp_path / f"run{seed}.csv")
+        np.savetxt(paths[-1], np.column_stack((run.t_s, run.rate_dph, run.temp_c)), delimiter=",",
+                   header="t_s,rate_dph,temp_c", comments="", fmt="%.9g")  # fmt: skip
+    model = tmp_path / "model.json"
+    assert train_cli.main([*map(str, paths), "-o", str(model), "--particles", "4", "--iterations", "3", "-q"]) == 0
+    out = capsys.readouterr().out
+    chosen = [line for line in out.splitlines() if line.startswith("ladder: chose")]
+    assert len(chosen) == 1 and all(f"{rung.name} " in chosen[0] for rung in RUNGS)
+    stored = json.loads(model.read_text())["metrics"]["held_out"]
+    assert stored["folds"] == "leave-one-run-out, 3 runs" and stored["rung"] in chosen[0]
+    assert f"{stored['drift_rmse_dph']:.3g} ± {stored['spread_dph']:.2g}" in chosen[0]
+    assert modelfile.held_out(modelfile.load_channels(model))["rate_dph"]["drift_rmse"] == stored["drift_rmse_dph"]
