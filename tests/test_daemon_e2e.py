@@ -131,7 +131,8 @@ class Emu:
 
 
 def start_fogd(tmp_path: Path, port: str, model: Path, *args: str) -> Fogd:
-    fogd = Fogd(tmp_path, "--port", port, "--model", str(model), "--rate-hz", str(RATE_HZ), "--status-interval-s", "60", *args)
+    fogd = Fogd(tmp_path, "--port", port, "--model", str(model), "--rate-hz", str(RATE_HZ), "--status-interval-s", "60",
+                "--protocol", "kvh-a", *args)  # named: these tests write frames only after fogd says it is reading
     try:
         fogd.wait_for("fogd.daemon: reading")
     except BaseException:

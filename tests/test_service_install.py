@@ -97,7 +97,7 @@ def run_as_dynamic_user(staged: Path, model: Path, tmp_path: Path) -> subprocess
     try:
         command = ["setpriv", f"--reuid={DYNAMIC_UID}", f"--regid={DYNAMIC_UID}", "--clear-groups",
                    os.path.realpath(staged / "usr" / "local" / "bin" / "fogd"), "--port", path, "--model", str(model),
-                   "--out", os.devnull, "--stats-file", "none", "--duration-s", "1"]  # fmt: skip
+                   "--protocol", "kvh-a", "--out", os.devnull, "--stats-file", "none", "--duration-s", "1"]  # fmt: skip
         return subprocess.run(command, capture_output=True, text=True, timeout=30, cwd=tmp_path)
     finally:
         os.close(master)

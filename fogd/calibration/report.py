@@ -1,8 +1,9 @@
 """The training report of `fogd-train --report DIR`: PNG figures and a markdown summary (`report.md`).
 
-Owns the figures of the paper's section 4 for a training: each method's fit and residual over time
-(figs 4-6), error against temperature coloured by temperature rate (hysteresis), PSO convergence, and the
-compensation of held-out runs (figs 7-9); and the summary with tables 3 and 4. matplotlib is imported here
+Owns the figures of the paper's section 4 for a training: each method's fit and residual over time (figs
+4-6) with each run's offset taken off, the error against temperature coloured by the temperature rate with each
+model drawn along each training run (hysteresis), PSO convergence, and the compensation of held-out runs (figs
+7-9); and the summary with tables 3 and 4, its captions written from each model's inputs. matplotlib is imported here
 only, with the Agg backend, when a report is written.
 """
 
@@ -24,8 +25,8 @@ from fogd.calibration.replay import (
 from fogd.calibration.tables import epsilon_key, error_table, unit_named
 from fogd.core.atomic import replaced
 from fogd.core.columns import TRUE_ERROR_COLUMN
-from fogd.core.errorstats import ErrorStats
-from fogd.core.inputs import TEMP, TEMP_RATE
+from fogd.core.errorstats import ErrorStats, centred_within_runs
+from fogd.core.inputs import TEMP, TEMP_LAG, TEMP_PLAY, TEMP_RATE, InputSpec, describe_inputs
 from fogd.core.runio import Run
 from fogd.errors import InputError, describe_os_error
 
@@ -83,13 +84,12 @@ def write_report(
     lines += [error_table(rows, markdown=True, unit=unit), ""]
     for method, t in trained.items():
         name = _save(_fit_figure(method, t, colours[method], block_s, unit), out, f"fit_{_slug(method)}.png")
-        lines += [f"![{method}: fit and residual]({name})", ""]
-    name = _save(_hysteresis_figure(trained, unit), out, "error_vs_temperature.png")
+        lines += [_fit_caption(method, t, unit), "", f"![{method}: fit and residual]({name})", ""]
+    name = _save(_hysteresis_figure(trained, colours, unit), out, "error_vs_temperature.png")
     lines += [
         "## Error against temperature",
         "",
-        "Block means coloured by the temperature rate; lines are each model at a fixed rate (other inputs at their "
-        "median). Heating and cooling branches apart at the same temperature are the hysteresis the rate input models.",
+        *_hysteresis_caption(trained),
         "",
         f"![error against temperature]({name})",
         "",
@@ -180,22 +180,42 @@ def _run_time_h(t: Trained, block_s: float) -> tuple[np.ndarray, list[tuple[floa
     return times, spans
 
 
+def run_offsets(t: Trained) -> np.ndarray:
+    """Each block's run offset: its run's mean of the measured error minus the fit. A run's turn-on bias is not
+    thermal; table 3 scores the residual about it, and the figures take it off the measured errors."""
+    residual = t.error_dph - t.fit_dph
+    return residual - centred_within_runs(residual, t.data.groups)
+
+
+def _fit_caption(method: str, t: Trained, unit: str) -> str:
+    offsets = run_offsets(t)
+    first = [offsets[t.data.groups == index][0] for index in range(len(t.data.runs))]
+    each = ", ".join(f"{info['name']} {offset:+.3g}" for info, offset in zip(t.data.runs, first))
+    return (f"{method}: the training runs' block errors (dots) and the fit above, the residual below, each "
+            f"run's own offset (its turn-on bias, which the fit removes and table 3 does not score) taken off: "
+            f"{each} {unit}. The residual should look like noise about zero, with no shape that follows the "
+            "temperature.")  # fmt: skip
+
+
 def _fit_figure(method: str, t: Trained, colour: str, block_s: float, unit: str) -> Figure:
-    """Paper figs 4-6: measured block-mean error with the model's fit, and the residual below."""
+    """Paper figs 4-6: measured block-mean error with the model's fit, and the residual below, each run's offset
+    (`run_offsets`) taken off."""
     figure, axes = _figure(2, height=3.0, sharex=True, gridspec_kw={"height_ratios": [3, 2]})
     top, bottom = axes[0, 0], axes[1, 0]
     hours, spans = _run_time_h(t, block_s)
-    if t.data.true_error_dph is not None:  # the simulator's truth, shifted to the targets' mean (bias is not thermal)
-        truth = t.data.true_error_dph - t.data.true_error_dph.mean() + t.error_dph.mean()
+    measured = t.error_dph - run_offsets(t)
+    if t.data.true_error_dph is not None:  # the simulator's truth about the fit in each run (bias is not thermal)
+        gap = t.data.true_error_dph - t.fit_dph
+        truth = t.data.true_error_dph - (gap - centred_within_runs(gap, t.data.groups))
     for index in range(len(spans)):
         here = t.data.groups == index
-        label = "measured" if index == 0 else None
-        top.plot(hours[here], t.error_dph[here], ".", color=MEASURED, ms=4, label=label)
+        label = "measured, run offset off" if index == 0 else None
+        top.plot(hours[here], measured[here], ".", color=MEASURED, ms=4, label=label)
         if t.data.true_error_dph is not None:
             top.plot(hours[here], truth[here], "--", color=TRUTH, lw=1.2,
                      label="true thermal error" if index == 0 else None)  # fmt: skip
         top.plot(hours[here], t.fit_dph[here], "-", color=colour, lw=1.6, label=f"{method} fit" if index == 0 else None)
-        bottom.plot(hours[here], t.error_dph[here] - t.fit_dph[here], ".-", color=colour, ms=3, lw=0.8,
+        bottom.plot(hours[here], measured[here] - t.fit_dph[here], ".-", color=colour, ms=3, lw=0.8,
                     label="residual" if index == 0 else None)  # fmt: skip
     for start, run in spans:
         for axis in (top, bottom):
@@ -205,7 +225,8 @@ def _fit_figure(method: str, t: Trained, colour: str, block_s: float, unit: str)
                      textcoords="offset points", va="top", fontsize=8, color="0.2",
                      bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": "none", "alpha": 0.8})  # fmt: skip
     before, after = t.before, t.after
-    top.set_title(f"{method}: training fit (RMSE {before.rmse_dph:.3g} -> {after.rmse_dph:.3g} {unit})")
+    top.set_title(f"{method}: training fit (RMSE {before.rmse_dph:.3g} -> {after.rmse_dph:.3g} {unit}), "
+                  "each run's offset taken off")  # fmt: skip
     top.set_ylabel(f"error ({unit})")
     bottom.set_ylabel(f"residual ({unit})")
     bottom.axhline(0.0, color="k", lw=0.6)
@@ -216,56 +237,90 @@ def _fit_figure(method: str, t: Trained, colour: str, block_s: float, unit: str)
     return figure
 
 
-def _hysteresis_figure(trained: dict[str, Trained], unit: str) -> Figure:
-    """Block-mean error against temperature, coloured by temperature rate, with each model at a few rates."""
-    import matplotlib.pyplot as plt
+def temperature_column(specs: tuple[InputSpec, ...]) -> int:
+    """The input drawn as "the temperature": the sensor's, else the fastest lag, else the first input."""
+    kinds = [spec.kind for spec in specs]
+    if TEMP in kinds:
+        return kinds.index(TEMP)
+    lags = [index for index, spec in enumerate(specs) if spec.kind == TEMP_LAG]
+    return min(lags, key=lambda index: specs[index].tau_s or 0.0) if lags else 0
 
+
+def block_temperature_rate_cps(t: Trained) -> np.ndarray:
+    """Each block's temperature rate (C/s): the slope of its run's block temperatures at the block (central
+    differences, one-sided at a run's ends), the same for every model whatever its inputs."""
+    temp_c = t.data.x[:, temperature_column(t.model.inputs)]
+    rate = np.zeros_like(temp_c)
+    for run in np.unique(t.data.groups):
+        rows = t.data.groups == run
+        if rows.sum() >= 2:
+            rate[rows] = np.gradient(temp_c[rows], t.data.block_t_s[rows])
+    return rate
+
+
+def _hysteresis_figure(trained: dict[str, Trained], colours: dict[str, str], unit: str) -> Figure:
+    """Block-mean error (each run's offset off) against temperature, coloured by the temperature rate, with each
+    model's prediction along each training run: a model of more than the temperature (rates, lags, the play
+    operator) has no one curve over temperature, and one drawn with its other inputs frozen leaves the data."""
     cols = min(2, len(trained))
     rows = -(-len(trained) // cols)
     figure, axes = _figure(rows, cols, width=6.0 * cols, height=4.2, sharex=True, sharey=True)
     for axis in axes.flat[len(trained):]:
         axis.set_visible(False)
+    styles = ("-", "--", "-.", ":")
     for axis, (method, t) in zip(axes.flat, trained.items()):
-        kinds = [spec.kind for spec in t.model.inputs]
-        temp_col = kinds.index(TEMP) if TEMP in kinds else 0
-        rate_col = kinds.index(TEMP_RATE) if TEMP_RATE in kinds else None
-        x = t.data.x
-        if rate_col is None:
-            axis.plot(x[:, temp_col], t.error_dph, ".", color=MEASURED, label="measured")
-            rates: list[float | None] = [None]
-        else:
-            limit = float(np.max(np.abs(x[:, rate_col]))) or 1.0
-            dots = axis.scatter(x[:, temp_col], t.error_dph, c=x[:, rate_col], cmap="coolwarm",
-                                vmin=-limit, vmax=limit, s=16, edgecolors="0.4", linewidths=0.3)  # fmt: skip
-            figure.colorbar(dots, ax=axis, label="temperature rate (C/s)")
-            decimals = max(0, 1 - int(np.floor(np.log10(limit))))  # two significant digits of the range
-            quantiles = np.round(np.percentile(x[:, rate_col], [5, 50, 95]), decimals) + 0.0
-            rates = sorted({float(q) for q in quantiles})
-        grid = np.linspace(x[:, temp_col].min(), x[:, temp_col].max(), 200)
-        for rate in rates:
-            rows_x = np.tile(np.median(x, axis=0), (grid.size, 1))
-            rows_x[:, temp_col] = grid
-            if rate is None:
-                label, colour = f"{method} model", "k"
-            else:
-                rows_x[:, rate_col] = rate
-                label = f"model at {rate:+.{decimals}f} C/s"
-                colour = plt.get_cmap("coolwarm")(0.5 + 0.5 * rate / limit)
-            axis.plot(grid, t.model.predict(rows_x)[0], color=colour, lw=2.0, label=label,
-                      path_effects=_outline())  # fmt: skip
+        temp_c = t.data.x[:, temperature_column(t.model.inputs)]
+        rate = block_temperature_rate_cps(t)
+        limit = float(np.max(np.abs(rate))) or 1.0
+        dots = axis.scatter(temp_c, t.error_dph - run_offsets(t), c=rate, cmap="coolwarm", vmin=-limit, vmax=limit,
+                            s=16, edgecolors="0.4", linewidths=0.3, label="measured, run offset off")  # fmt: skip
+        figure.colorbar(dots, ax=axis, label="temperature rate (C/s)")
+        for index, info in enumerate(t.data.runs):
+            here = t.data.groups == index
+            axis.plot(temp_c[here], t.fit_dph[here], styles[index % len(styles)], color=colours[method], lw=1.2,
+                      label=f"{method} along {info['name']}", path_effects=_outline())  # fmt: skip
         axis.set_title(f"{method}: error against temperature")
         axis.set_xlabel("temperature (C)")
         axis.set_ylabel(f"error ({unit})")
         axis.grid(True, alpha=0.4)
         axis.legend(fontsize=8, loc="best")
         axis.label_outer()
+    empty = len(trained) % cols  # panels above an empty one are the last of their column
+    for axis in axes[-2, empty:] if empty else ():
+        axis.xaxis.set_tick_params(labelbottom=True)
+        axis.set_xlabel("temperature (C)")
     return figure
+
+
+def _hysteresis_caption(trained: dict[str, Trained]) -> list[str]:
+    """What the figure draws, and what each model's real inputs can and cannot draw."""
+    lines = [
+        "Block means of the training runs against temperature, each run's own offset taken off, coloured by the "
+        "temperature rate (C/s, the slope of the block temperatures); each line is a model's prediction along one "
+        "training run, from that run's own inputs. Heating and cooling branches apart at the same temperature are "
+        "the rate-driven (Shupe) error and hysteresis.",
+        "",
+    ]
+    for method, t in trained.items():
+        lines.append(f"- {method} (inputs `{describe_inputs(t.model.inputs)}`): {_what_inputs_carry(t.model.inputs)}")
+    return lines
+
+
+def _what_inputs_carry(specs: tuple[InputSpec, ...]) -> str:
+    kinds = {spec.kind for spec in specs}
+    named = ((TEMP_RATE, "the eq. 16 temperature rate"), (TEMP_LAG, "lagged temperatures (the coil's)"),
+             (TEMP_PLAY, "the play operator (heating or cooling)"))
+    carriers = [text for kind, text in named if kind in kinds]
+    if not carriers:
+        return ("a model of temperature alone: one value per temperature, so its lines lie on one curve and "
+                "cannot follow branches apart.")
+    return "the branches come from " + " and ".join(carriers) + "."
 
 
 def _outline() -> list:
     from matplotlib import patheffects
 
-    return [patheffects.withStroke(linewidth=3.5, foreground="k"), patheffects.Normal()]
+    return [patheffects.withStroke(linewidth=2.4, foreground="k"), patheffects.Normal()]
 
 
 def _convergence_figure(histories: dict[str, Trained], colours: dict[str, str], unit: str) -> Figure:

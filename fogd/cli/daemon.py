@@ -15,10 +15,11 @@ import os
 import signal
 import sys
 import threading
-from pathlib import Path
+import time
 from typing import Any, Sequence
 
 from fogd import protocols
+from fogd.cli import demo as demo_mode
 from fogd.cli.common import ArgumentParser, run
 from fogd.core import modelfile
 from fogd.core.channels import ChannelModels
@@ -27,7 +28,7 @@ from fogd.core.flags import Flag
 from fogd.core.frozen import FrozenModel
 from fogd.errors import ConfigError, DeviceError
 from fogd.protocols.lexer import Lexer
-from fogd.serving import config, statsfile, unitquery
+from fogd.serving import autodetect, config, statsfile, unitquery
 from fogd.serving.channels import as_models, method
 from fogd.serving.channels import plan as channel_plan
 from fogd.serving.config import AXES, OPTION_BY_KEY, OPTIONS
@@ -38,25 +39,9 @@ from fogd.serving.reader import Reader
 from fogd.serving.ring import Ring
 from fogd.serving.sdnotify import Notifier
 from fogd.serving.serialio import PortOpener, open_port
-from fogd.simulation.profiles import HOUR_S, Profile
 
 PROG = "fogd"
-DEMO_MODEL = Path(__file__).resolve().parent.parent / "data" / "demo-model.json"
-# The chamber ramps 0 -> 30 C and back with no soak first, and the demo starts 20 minutes in, when the gyro's
-# housing (which lags the air) is already warming: temperature, its rate and the compensation move at once.
-DEMO_PROFILE = Profile("demo-cycle", ((0.0, 0.0), (2.0 * HOUR_S, 30.0), (0.5 * HOUR_S, 30.0), (2.0 * HOUR_S, 0.0)))
-DEMO_START_S = 1200.0
-DEMO_RATE_HZ = 100.0
-# fogd frames carry the sensor's 0.0625 C temperature: its rate is smooth. A KVH's whole degrees (--protocol
-# kvh-a) make the eq. 16 rate a pulse at each degree, which is the truth about a KVH, not a first impression.
-DEMO_PROTOCOL = "fogd"
-DEMO_SPEED = 60.0  # four and a half chamber hours in four and a half minutes
-DEMO_LINE_EVERY_S = 5.0  # when stderr is not a terminal: a plain line this often instead of the live line
-DEMO_LEGEND = (
-    "columns: rate = the gyro's z rate as read (deg/h); comp = the thermal error the model predicts from the "
-    "temperature history (deg/h); compensated = rate - comp, what the navigation computer receives; "
-    "T = the temperature sensor (C); dT/dt = its rate (C/s); frames = frames read; drops = frames lost or corrupt"
-)
+DEMO_MODEL = demo_mode.MODEL
 EXIT_NOT_RUNNING = 3  # `fogd --status`: no live daemon (as LSB status actions say)
 log = logging.getLogger("fogd.daemon")
 
@@ -127,65 +112,6 @@ class Settings:
         return key in self.command_line or (self.path is not None and key in config.load(self.path))
 
 
-def demo(settings: dict[str, Any], protocol: protocols.Protocol, model, *, out_given: bool) -> int:
-    """The emulator streams a simulated chamber run, compressed in time, onto a pty in this process; fogd
-    compensates it and prints a live status line every second. Output is discarded unless --out is given."""
-    from fogd.simulation.emulator import Emulator, SimSource
-
-    source = Later(SimSource(DEMO_PROFILE, DEMO_RATE_HZ, seed=1), DEMO_START_S)
-    emulator = Emulator(source, protocol.name, speed=DEMO_SPEED, wait_reader=True, drain_timeout_s=0.0)
-    path = emulator.start()
-    print(
-        f"fogd demo: simulated FOG on {path} (chamber 0 -> 30 C in 2 h, 30 min at 30 C, back to 0 C in 2 h; from "
-        f"{DEMO_START_S / 60:g} min in, "
-        f"at {DEMO_SPEED:g}x real time, {protocol.name} frames, "
-        f"{DEMO_RATE_HZ:g} Hz), model {model.name}; Ctrl-C to stop\n{DEMO_LEGEND}",
-        file=sys.stderr,
-    )
-    settings = {**settings, "port": path, "rate_hz": DEMO_RATE_HZ, "out": settings["out"] if out_given else os.devnull}
-    finished = threading.Event()
-
-    terminal = sys.stderr.isatty()
-
-    def live(daemon: Daemon) -> None:
-        # a terminal gets one line rewritten in place; a file or pipe gets plain lines, no \r or escapes
-        while not finished.wait(1.0 if terminal else DEMO_LINE_EVERY_S):
-            latest, lexer = daemon.latest, daemon.reader.lexer.counters
-            drops = lexer.bad_crc + lexer.truncated + lexer.bad_line + daemon.ring.overruns
-            line = (
-                f"rate {latest.rate_dph:+9.3f}  comp {latest.comp_dph:+8.3f}  compensated {latest.rate_comp_dph:+9.3f} "
-                f"deg/h  T {latest.temp_c:6.2f} C  dT/dt {latest.temp_rate_cps:+.5f} C/s  frames {lexer.frames_ok}  "
-                f"drops {drops}"
-            )  # fmt: skip
-            print(f"\r{line}\x1b[K" if terminal else line, end="" if terminal else "\n", file=sys.stderr, flush=True)
-
-    def start_live(daemon: Daemon) -> None:
-        threading.Thread(target=live, args=(daemon,), name="fogd-demo-status", daemon=True).start()
-
-    try:
-        return serve(settings, protocol, model, on_daemon=start_live)
-    finally:
-        finished.set()
-        if terminal:
-            print(file=sys.stderr)
-        emulator.stop()
-        emulator.join(1.0)
-
-
-class Later:
-    """A source of samples (fogd.simulation.emulator's SimSource) from `start_s` on, its time starting at 0 there."""
-
-    def __init__(self, source, start_s: float) -> None:
-        self.source = source
-        self.first = int(round(start_s * source.rate_hz))
-        self.rate_hz = source.rate_hz
-        self.rows = source.rows - self.first
-
-    def columns(self, start: int, stop: int):
-        t_s, rate_dph, temp_c = self.source.columns(start + self.first, stop + self.first)
-        return t_s - self.first / self.rate_hz, rate_dph, temp_c
-
-
 def configure_logging(verbose: bool, quiet: bool) -> None:
     level = logging.DEBUG if verbose else logging.WARNING if quiet else logging.INFO
     logging.basicConfig(stream=sys.stderr, level=level, format="%(name)s: %(message)s")
@@ -209,13 +135,13 @@ def body(argv: Sequence[str] | None) -> int:
         return status(args)
     sources = Settings(args)
     settings = sources.read()
-    if args.demo and not sources.given("protocol"):
-        settings["protocol"] = DEMO_PROTOCOL
     configure_logging(args.verbose, args.quiet)
+    if settings["protocol"] == "auto" and settings["query_settings"]:
+        settings["protocol"] = "kvh-a"  # only a KVH unit answers the settings query
     model = load_model(settings["model"])
-    protocol = make_protocol(settings, model)
+    protocol = None if settings["protocol"] == "auto" else make_protocol(settings, model)
     if args.demo:
-        return demo(settings, protocol, model, out_given=sources.given("out"))
+        return demo_mode.run(settings, protocol, model, serve, out_given=sources.given("out"), verbose=args.verbose)
     return serve(settings, protocol, model, sources=sources)
 
 
@@ -246,6 +172,22 @@ def load_model(path: str) -> FrozenModel | ChannelModels:
     """A single-channel file as its model (today's daemon), a multi-channel file as its models by channel."""
     models = modelfile.load_channels(path)
     return models if models.version == modelfile.CHANNELS_VERSION else models[SINGLE_CHANNEL]
+
+
+def candidates(settings: dict[str, Any], model: FrozenModel | ChannelModels) -> list[protocols.Protocol]:
+    """The protocols `auto` tries: each one that can carry what the model compensates on the axis set."""
+    tried = []
+    for name in protocols.names():
+        if name == "ascii" and settings["axis"] != "z":
+            log.debug("protocol auto: not trying ascii (it carries the z axis only; axis is %s)", settings["axis"])
+            continue
+        try:
+            tried.append(make_protocol({**settings, "protocol": name}, model))
+        except ConfigError as error:
+            log.debug("protocol auto: not trying %s (%s)", name, error)
+    if not tried:
+        raise ConfigError("key 'protocol': no protocol fogd knows carries this model's channels")
+    return tried
 
 
 def make_protocol(settings: dict[str, Any], model: FrozenModel | ChannelModels | None = None) -> protocols.Protocol:
@@ -281,15 +223,23 @@ def reloader(sources: Settings, running: dict[str, Any]):
     return reload
 
 
-def serve(settings: dict[str, Any], protocol: protocols.Protocol, model, *, on_daemon=None, sources: Settings | None = None) -> int:
-    """Open the port and the sink, run the daemon until a signal or the duration, and shut down cleanly."""
+def serve(settings: dict[str, Any], protocol: protocols.Protocol | None, model, *, on_daemon=None,
+          sources: Settings | None = None) -> int:  # fmt: skip
+    """Open the port and the sink (recognise the protocol first when `protocol` is None: auto), run the daemon
+    until a signal or the duration, and shut down cleanly."""
     path, baud = settings["port"], settings["baud"]
     instance = sources.instance if sources is not None else config.DEFAULT_INSTANCE
     stats_path = config.stats_path(settings["stats_file"], instance)
     axis = AXES.index(settings["axis"])
-    channels = channel_plan(as_models(model), protocol, axis)
+    if protocol is None:  # what can be refused before the protocol is known is refused now, not once it is
+        tried = candidates(settings, model)
+        for one in as_models(model).values():
+            modelfile.check_rate(one, settings["rate_hz"], one.name)
+    else:
+        channels = channel_plan(as_models(model), protocol, axis)
     port = open_port(path, baud)
-    received = bytearray()  # what the settings query read: frames the reader frames first
+    received = bytearray()  # what the settings query or the detection read: frames the reader frames first
+    notifier = Notifier()
     try:
         if settings.get("query_settings"):
             unitquery.check_settings(unitquery.query_settings(port, path, received=received), settings, path)
@@ -299,6 +249,30 @@ def serve(settings: dict[str, Any], protocol: protocols.Protocol, model, *, on_d
     except BaseException:
         port.close()
         raise
+    duration_s = settings["duration_s"]
+    if protocol is None:
+        started_s = time.monotonic()
+        stopping = threading.Event()
+        for signum in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(signum, lambda *_: stopping.set())
+        for signum in (signal.SIGHUP, signal.SIGUSR1):  # their default would end fogd; nothing to reload or count yet
+            signal.signal(signum, signal.SIG_IGN)
+        try:
+            detected = autodetect.detect(port, path, tried, stopping=stopping, received=bytes(received), notifier=notifier,
+                                         until_s=started_s + duration_s if duration_s else None)  # fmt: skip
+        except BaseException:
+            port.close()
+            sink.close()
+            raise
+        if detected is None:  # stopped before anything was recognised
+            port.close()
+            sink.close()
+            return 0
+        received[:] = detected[1]
+        protocol = make_protocol({**settings, "protocol": detected[0].name}, model)
+        channels = channel_plan(as_models(model), protocol, axis)
+        if duration_s:  # the duration counts from the start, detection included
+            duration_s = max(duration_s - (time.monotonic() - started_s), 1e-3)
     reader = Reader(PortOpener(path, baud), Lexer(protocol), Ring(RING_CAPACITY), port=port, received=bytes(received))
     daemon = Daemon(
         reader=reader,
@@ -310,8 +284,8 @@ def serve(settings: dict[str, Any], protocol: protocols.Protocol, model, *, on_d
         channels=channels,
         temp_stale_s=settings["temp_stale_s"],
         status_interval_s=settings["status_interval_s"],
-        duration_s=settings["duration_s"],
-        notifier=Notifier(),
+        duration_s=duration_s,
+        notifier=notifier,
         reload=reloader(sources, settings) if sources is not None else None,
         stats_path=stats_path,
         info={"instance": instance, "port": path, "protocol": protocol.name, "out": settings["out"]},

@@ -98,8 +98,8 @@ OPTIONS = (
            metavar="PATH"),
     Option("baud", _baud, "number", 921600, "baud rate of the port, and of --out when it is a serial port "
            "(50..12000000; default: %(default)s)", "baud", "BAUD"),
-    Option("protocol", _text, "choice", "kvh-a", "wire protocol of the port (default: %(default)s)",
-           choices=tuple(protocols.names())),
+    Option("protocol", _text, "choice", "auto", "wire protocol of the port; auto recognises kvh-a, fogd and ascii "
+           "from the first frames (default: %(default)s)", choices=("auto", *protocols.names())),
     Option("model", _text, "text", DEFAULT_MODEL, f"model file from fogd-train (default: {DEFAULT_MODEL}; with "
            "--demo the bundled demo model)", metavar="PATH", reloadable=True),
     Option("out", _text, "text", "-", "where compensated frames go: '-' stdout, a file or serial/pty device path, "
@@ -263,7 +263,7 @@ def check(settings: dict[str, Any], *, demo: bool) -> None:
         raise ConfigError("key 'port' is not set: give --port PATH (or port: in the config), or try --demo")
     if settings["protocol"] == "ascii" and settings["axis"] != "z":
         raise ConfigError("key 'axis': protocol ascii carries the z axis only; use axis z")
-    if settings["protocol"] != "kvh-a":
+    if settings["protocol"] not in ("kvh-a", "auto"):
         for key in KVH_ONLY:
             if settings[key] != OPTION_BY_KEY[key].default:
                 raise ConfigError(f"key '{key}' sets a KVH unit's output: it applies to protocol kvh-a only, "
