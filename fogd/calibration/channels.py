@@ -170,6 +170,7 @@ def _fit(job: ChannelJob, settings: Settings, result: ChannelFit) -> None:
     unit = channel_unit(job.channel)
     config = dataclasses.replace(config, unit=unit)
     runs = job.runs
+    nothing_dph = None  # the uncompensated drift on the held-out folds (the ladder's), else the blocks' own
     if settings.ladder:
         ladder = climb(runs, config, log=say.err if settings.log else None, unit=unit,
                        average_s=settings.average_s, step_s=settings.step_s)  # fmt: skip
@@ -182,6 +183,7 @@ def _fit(job: ChannelJob, settings: Settings, result: ChannelFit) -> None:
         result.selection = None
         say.out(ladder.line(unit))
         result.held_out_dph = ladder.chosen.drift_rmse_dph
+        nothing_dph = ladder.uncompensated_dph
     elif settings.auto:
         best, candidates = select(runs, config, settings.sets, log=say.err if settings.log else None, unit=unit)
         result.label = f"auto: {best.label}"
@@ -224,7 +226,7 @@ def _fit(job: ChannelJob, settings: Settings, result: ChannelFit) -> None:
     for holdout in job.holdouts:
         say.out(f"\nTable 4: {holdout.name}, not used for training (block means about the run mean)")
         say.out(error_table(holdout_rows(result.trained, holdout, block_s), unit=unit))
-    result.worse = worse_than_nothing(chosen, result.held_out_dph, unit)
+    result.worse = worse_than_nothing(chosen, result.held_out_dph, unit, nothing_dph)
 
 
 def uncompensated_drift_dph(trained: Trained) -> float:
@@ -232,9 +234,12 @@ def uncompensated_drift_dph(trained: Trained) -> float:
     return drift_rmse(trained.error_dph, trained.data.groups)
 
 
-def worse_than_nothing(trained: Trained, held_out_dph: float | None, unit: str = "deg/h") -> str | None:
-    """What to say when the model's held-out drift exceeds the drift it is meant to remove, else None."""
-    uncompensated_dph = uncompensated_drift_dph(trained)
+def worse_than_nothing(trained: Trained, held_out_dph: float | None, unit: str = "deg/h",
+                       uncompensated_dph: float | None = None) -> str | None:  # fmt: skip
+    """What to say when the model's held-out drift exceeds the drift it is meant to remove (`uncompensated_dph`,
+    scored on the same folds, or else the calibration blocks' own drift), else None."""
+    if uncompensated_dph is None:
+        uncompensated_dph = uncompensated_drift_dph(trained)
     if held_out_dph is None or held_out_dph <= uncompensated_dph:
         return None
     return (f"the model's held-out drift ({held_out_dph:.3e} {unit}) exceeds the uncompensated drift "

@@ -31,7 +31,7 @@ from typing import Callable
 
 import numpy as np
 
-from fogd.calibration.models.folds import MIN_RUNS_LEFT_OUT, Split, drift_rmse, time_folds
+from fogd.calibration.models.folds import MIN_RUNS_LEFT_OUT, Split, drift_rmse, run_levels, time_folds
 from fogd.calibration.selection import fit_family, nested_residual
 from fogd.calibration.training import TrainConfig, Trained, for_sensor, options_for_inputs, prepare
 from fogd.core.inputs import DEFAULT_INPUTS_TEXT, InputSpec, describe_inputs, parse_inputs, shifted_columns
@@ -92,6 +92,7 @@ class Ladder:
     chosen: Scored
     folds: str
     trained: Trained
+    uncompensated_dph: float  # no compensation at all, scored on the same folds (`uncompensated`)
 
     def held_out(self) -> dict:
         """The model file's `metrics.held_out` (fogd.core.modelfile.held_out)."""
@@ -113,6 +114,16 @@ def gap_rows(specs: tuple[InputSpec, ...], block_s: float) -> int:
     longest_s = max([spec.tau_s or 0.0 for spec in specs]
                     + [spec.estimator.window_s for spec in specs if spec.estimator is not None] + [0.0])  # fmt: skip
     return math.ceil(longest_s / block_s)
+
+
+def uncompensated(error_dph: np.ndarray, groups: np.ndarray, splits: list[Split]) -> float:
+    """The held-out drift of no compensation on the same folds: each held-out stretch at its run's level on the
+    training rows (what the rungs' residuals are scored about), so that "worse than nothing" compares like
+    with like; the calibration blocks' own spread is smaller wherever the folds make a level hard to know."""
+    residual = np.full_like(error_dph, np.nan)
+    for train, test in splits:
+        residual[test] = run_levels(error_dph[train], groups[train], groups[test]) - error_dph[test]
+    return drift_rmse(residual, groups)
 
 
 def choose(scored: list[Scored]) -> Scored:
@@ -145,6 +156,7 @@ def climb(runs, config: TrainConfig, rungs: tuple[Rung, ...] = RUNGS, log: Calla
             data, reference = prepared
             if splits is None:
                 splits, groups = time_folds(data.groups, config.fit.folds, gap), data.groups
+                nothing_dph = uncompensated(data.rate_dph - reference, groups, splits)
             elif not np.array_equal(groups, data.groups):
                 raise AssertionError("every rung must be scored on the very same blocks")
             scoring = dataclasses.replace(options, particles=min(options.particles, SCORE_PARTICLES), folds=SCORE_FOLDS,
@@ -171,4 +183,4 @@ def climb(runs, config: TrainConfig, rungs: tuple[Rung, ...] = RUNGS, log: Calla
     n_runs = len(np.unique(groups))
     folds = (f"leave-one-run-out, {n_runs} runs" if n_runs >= MIN_RUNS_LEFT_OUT else
              f"{len(splits)} time folds of {'each run' if n_runs > 1 else 'the run'}, {gap} blocks apart")  # fmt: skip
-    return Ladder(scored, chosen, folds, trained)
+    return Ladder(scored, chosen, folds, trained, nothing_dph)
