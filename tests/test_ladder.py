@@ -201,3 +201,18 @@ def test_fogd_train_by_default_says_what_it_chose_in_one_line_and_keeps_the_esti
     assert stored["folds"] == "leave-one-run-out, 3 runs" and stored["rung"] in chosen[0]
     assert f"{stored['drift_rmse_dph']:.3g} ± {stored['spread_dph']:.2g}" in chosen[0]
     assert modelfile.held_out(modelfile.load_channels(model))["rate_dph"]["drift_rmse"] == stored["drift_rmse_dph"]
+
+
+@pytest.mark.parametrize("sizes, n_folds", [((30, 40, 25), 5), ((60,), 4), ((30, 45), 3)])
+def test_no_compensation_is_scored_on_the_same_folds(sizes, n_folds):
+    """A turn-on bias alone is nothing to compensate; a drift within each run is what is left uncompensated."""
+    from fogd.calibration.ladder import uncompensated
+
+    groups = np.repeat(np.arange(len(sizes)), sizes)
+    splits = time_folds(groups, n_folds, 2)
+    bias = np.array([0.3, -1.0, 2.0])[groups]
+    assert uncompensated(bias, groups, splits) == pytest.approx(0.0, abs=1e-12)
+    ramp = bias + np.concatenate([np.linspace(-1.0, 1.0, size) for size in sizes])
+    nothing = uncompensated(ramp, groups, splits)
+    own = np.sqrt(np.mean(np.concatenate([np.linspace(-1.0, 1.0, size) ** 2 for size in sizes])))
+    assert nothing == pytest.approx(own) if len(sizes) >= 3 else nothing > own  # a level from other stretches
