@@ -81,7 +81,8 @@ def parser() -> ArgumentParser:
         "--method", choices=("ladder", *METHODS, "auto"), default=None,
         help="model family (default: ladder; pso-svr when --inputs or --compare is given); ladder: the simplest of linear [temp,rate@50] (IEEE 952), its static curve, "
         "the coil trend over the lag bank and that trend under PSO-SVR whose held-out drift is within one standard "
-        "error of the best's (leave-one-run-out with two runs or more, else --folds time folds a lag apart; it says "
+        "error of the best's (leave-one-run-out with three runs or more, else --folds time folds of every run, a lag "
+        "apart; it says "
         "what it chose and why in one line, and the model file keeps the estimate); auto: choose the family and the input set by nested held-out error (leave-one-run-out, "
         "or blocked time folds for one run; each family tuned without the fold it is scored on) among linear, "
         "ls-poly, rbf-nn, pso-svr on the --auto-inputs sets",
