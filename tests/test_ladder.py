@@ -216,3 +216,15 @@ def test_no_compensation_is_scored_on_the_same_folds(sizes, n_folds):
     nothing = uncompensated(ramp, groups, splits)
     own = np.sqrt(np.mean(np.concatenate([np.linspace(-1.0, 1.0, size) ** 2 for size in sizes])))
     assert nothing == pytest.approx(own) if len(sizes) >= 3 else nothing > own  # a level from other stretches
+
+
+def test_short_runs_get_as_much_of_a_gap_as_leaves_a_third_of_them_to_train_on():
+    from fogd.calibration.ladder import affordable_gap
+
+    groups = np.repeat([0, 1], [80, 95])  # two 2 h runs of 100 s blocks
+    gap = affordable_gap(groups, 5)
+    assert gap == 18
+    for train, test in time_folds(groups, 5, gap):
+        for run, size in ((0, 80), (1, 95)):
+            assert np.sum(groups[train] == run) >= 80 / 3
+    assert affordable_gap(np.zeros(864, dtype=int), 5) >= 30  # a day at 1 Hz keeps the lag bank's whole 3000 s

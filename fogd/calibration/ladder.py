@@ -5,7 +5,8 @@ with the static curve (the coil trend's powers 2 and 3 of the temperature); the 
 and play operator (fogd's thermal state, no kernel); and that trend under the PSO-tuned SVR (fogd's richest
 model). Each rung is scored by held-out drift (RMSE of 100 s blocks about each run's mean) on folds that respect
 time (`fogd.calibration.models.folds.time_folds`: leave-one-run-out with three runs or more; with one or two,
-the k-th stretch of every run held out together, with a gap of the longest lag on either side), every fold predicted by a model tuned and
+the k-th stretch of every run held out together, with a gap of the longest lag on either side, or as much of
+one as leaves a third of each run to train on), every fold predicted by a model tuned and
 fitted without it (`selection.nested_residual`), its inputs clamped as the daemon clamps them.
 
 The choice is the one-standard-error rule: the simplest rung whose held-out drift is within one standard error
@@ -116,6 +117,13 @@ def gap_rows(specs: tuple[InputSpec, ...], block_s: float) -> int:
     return math.ceil(longest_s / block_s)
 
 
+def affordable_gap(groups: np.ndarray, n_folds: int) -> int:
+    """The largest gap that leaves every time fold at least a third of the shortest run's rows to train on
+    (a 2 h run has 80 blocks: with 5 folds and the lag bank's 30 blocks on either side, none; its gap is 19)."""
+    rows = int(np.min(np.unique(groups, return_counts=True)[1]))
+    return max(0, (rows - math.ceil(rows / max(n_folds, 1)) - math.ceil(rows / 3)) // 2)
+
+
 def uncompensated(error_dph: np.ndarray, groups: np.ndarray, splits: list[Split]) -> float:
     """The held-out drift of no compensation on the same folds: each held-out stretch at its run's level on the
     training rows (what the rungs' residuals are scored about), so that "worse than nothing" compares like
@@ -155,6 +163,7 @@ def climb(runs, config: TrainConfig, rungs: tuple[Rung, ...] = RUNGS, log: Calla
             prepared = prepare(runs, rung_config, min_warmup_s=common_s)
             data, reference = prepared
             if splits is None:
+                gap = min(gap, affordable_gap(data.groups, config.fit.folds))
                 splits, groups = time_folds(data.groups, config.fit.folds, gap), data.groups
                 nothing_dph = uncompensated(data.rate_dph - reference, groups, splits)
             elif not np.array_equal(groups, data.groups):
