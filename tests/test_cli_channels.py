@@ -97,7 +97,7 @@ def test_replay_compensates_the_model_channels_and_passes_the_others_through(run
 def test_swarm_per_channel_in_parallel_with_a_report(runs, tmp_path, capsys):
     model, report = tmp_path / "svr.json", tmp_path / "report"
     status, stdout, err = main(train_cli, [runs["heat"], runs["cool"], "-o", model, "--channels", "rate_x_dph,accel_z_g",
-                                           "--particles", "6", "--iterations", "4", "--jobs", "2", "-q",
+                                           "--method", "pso-svr", "--particles", "6", "--iterations", "4", "--jobs", "2", "-q",
                                            "--report", report], capsys)  # fmt: skip
     assert status == 0, err
     assert stdout.index("=== rate_x_dph ===") < stdout.index("=== accel_z_g ===")

@@ -193,7 +193,10 @@ def test_fogd_train_by_default_says_what_it_chose_in_one_line_and_keeps_the_esti
         np.savetxt(paths[-1], np.column_stack((run.t_s, run.rate_dph, run.temp_c)), delimiter=",",
                    header="t_s,rate_dph,temp_c", comments="", fmt="%.9g")  # fmt: skip
     model = tmp_path / "model.json"
-    assert train_cli.main([*map(str, paths), "-o", str(model), "--particles", "4", "--iterations", "3", "-q"]) == 0
+    report = tmp_path / "report"
+    assert train_cli.main([*map(str, paths), "-o", str(model), "--particles", "4", "--iterations", "3", "-q",
+                           "--report", str(report)]) == 0  # fmt: skip
+    assert "Model ladder (leave-one-run-out, 3 runs" in (report / "report.md").read_text()
     out = capsys.readouterr().out
     chosen = [line for line in out.splitlines() if line.startswith("ladder: chose")]
     assert len(chosen) == 1 and all(f"{rung.name} " in chosen[0] for rung in RUNGS)

@@ -175,12 +175,12 @@ def _fit(job: ChannelJob, settings: Settings, result: ChannelFit) -> None:
         ladder = climb(runs, config, log=say.err if settings.log else None, unit=unit,
                        average_s=settings.average_s, step_s=settings.step_s)  # fmt: skip
         result.label = f"ladder: {ladder.chosen.rung.name}"
-        result.trained = {ladder.chosen.rung.method: ladder.trained}
+        result.trained = {result.label: ladder.trained}
         result.chosen = ladder.trained
         result.chosen.document["metrics"]["held_out"] = ladder.held_out()
         result.chosen.document["training"]["ladder"] = {"rule": "one standard error", "folds": ladder.folds,
                                                         "rungs": [s.row() for s in ladder.scored]}  # fmt: skip
-        result.selection = None
+        result.selection = ladder.table(unit)
         say.out(ladder.line(unit))
         result.held_out_dph = ladder.chosen.drift_rmse_dph
         nothing_dph = ladder.uncompensated_dph

@@ -100,6 +100,14 @@ class Ladder:
         return {"drift_rmse_dph": self.chosen.drift_rmse_dph, "spread_dph": self.chosen.spread_dph,
                 "folds": self.folds, "rung": self.chosen.rung.name}  # fmt: skip
 
+    def table(self, unit: str = "deg/h") -> list[str]:
+        """The rungs as a markdown table, for the report."""
+        lines = [f"Model ladder ({self.folds}; the simplest rung within one standard error of the best):", "",
+                 f"| Rung | Model | Held-out drift ({unit}) | Standard error | |", "|---|---|---:|---:|---|"]  # fmt: skip
+        lines += [f"| {s.rung.name} | {s.rung.method} `{describe_inputs(s.inputs)}` | {s.drift_rmse_dph:.3e} | "
+                  f"{s.spread_dph:.2e} | {'chosen' if s is self.chosen else ''} |" for s in self.scored]  # fmt: skip
+        return lines
+
     def line(self, unit: str = "deg/h") -> str:
         """What was chosen and why, with every rung's held-out figure, in one line."""
         best = min(self.scored, key=lambda s: s.drift_rmse_dph)
