@@ -65,8 +65,10 @@ class Timed:
     model: str | None  # None: stopped at its limit, no model
     line: str  # the ladder's one line, or ""
 
-    def seconds(self, value: float) -> str:
-        return f"{value:.1f}" if self.model else f"> {value:.0f} (stopped)"
+    def seconds(self, value: float, cpu: bool = False) -> str:
+        if self.model:
+            return f"{value:.1f}"
+        return "-" if cpu else f"> {value:.0f} (stopped)"  # a killed process's workers are never reaped: no CPU time
 
 
 def command(name: str) -> list[str]:
@@ -143,7 +145,7 @@ def held_out(model: str, run_path: str) -> tuple[float, float]:
 
 def ratio(value: float, baseline_value: float, baseline: Timed) -> str:
     """value / the baseline's; an upper bound when the baseline was stopped."""
-    return f"{'< ' if not baseline.model else ''}{value / baseline_value:.2f}"
+    return f"{'< ' if not baseline.model else ''}{value / baseline_value:.3g}"
 
 
 def header(argv: list[str]) -> list[str]:
@@ -156,7 +158,7 @@ def header(argv: list[str]) -> list[str]:
     return [
         "# Training time and held-out drift (tools/bench_train.py)",
         "",
-        f"- command: `python tools/bench_train.py {' '.join(argv)}`".rstrip() + "",
+        f"- command: `{' '.join(['python', 'tools/bench_train.py', *argv])}`",
         f"- date: {dt.datetime.now(dt.timezone.utc).strftime('%Y-%m-%d %H:%M UTC')}",
         f"- commit: {commit}",
         f"- {machine()}; load average at the start {os.getloadavg()[0]:.1f} (other work shares the machine: wall "
@@ -197,11 +199,12 @@ def main(argv: list[str] | None = None) -> int:
                 good = timed.wall_s < TARGET_S or timed.cpu_s < TARGET_S * 2  # 2 cores: 240 CPU s in 2 minutes
                 ok &= good or not default or args.quick
                 rows.append([
-                    data.name, way, timed.seconds(timed.wall_s), timed.seconds(timed.cpu_s),
-                    ratio(timed.wall_s, baseline.wall_s, baseline), ratio(timed.cpu_s, baseline.cpu_s, baseline),
+                    data.name, way, timed.seconds(timed.wall_s), timed.seconds(timed.cpu_s, cpu=True),
+                    ratio(timed.wall_s, baseline.wall_s, baseline),
+                    ratio(timed.cpu_s, baseline.cpu_s, baseline) if baseline.model else "-",
                     drift, (f"< {TARGET_S:.0f} s: {verdict(good)}" if default else "-"),
                 ])  # fmt: skip
-                print(f"  {way}: {timed.seconds(timed.wall_s)} s wall, {timed.seconds(timed.cpu_s)} s CPU, held-out {drift}",
+                print(f"  {way}: {timed.seconds(timed.wall_s)} s wall, {timed.seconds(timed.cpu_s, cpu=True)} s CPU, held-out {drift}",
                       flush=True)  # fmt: skip
             lines_chosen.append(f"- {data.name}: `{ways['default, --jobs 1'].line}`")
     title = "4. Training wall time and CPU time (s), against the paper's swarm in the same run, and held-out drift"
