@@ -54,6 +54,11 @@ class DeviceError(FogdError):
     exit_status = 74  # EX_IOERR
 
 
+class OutputError(DeviceError):
+    """An output file that cannot be written: a missing directory, a full disk, a directory or socket named as
+    the output."""
+
+
 def describe_os_error(error: OSError) -> str:
     """`OSError` as 'path: reason' without Python's '[Errno N]' prefix."""
     reason = error.strerror or os.strerror(error.errno or 0) or str(error)

@@ -145,6 +145,7 @@ def test_a_worse_channel_is_refused_by_name_and_forced_with_a_warning(runs, tmp_
 def manifest(tmp_path: Path, runs: dict[str, Path], units: str) -> Path:
     for name in ("heat", "cool", "heat-rate_y_dph", "cool-rate_y_dph"):
         (tmp_path / f"{name}.csv").symlink_to(runs[name])
+    (tmp_path / "models").mkdir(exist_ok=True)  # fogd-train creates no directories (issue 35.1)
     path = tmp_path / "units.yaml"
     path.write_text(units)
     return path

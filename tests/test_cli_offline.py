@@ -172,4 +172,4 @@ def test_replay_errors(runs, tmp_path):
     short.write_text("t_s,rate_dph,temp_c\n" + "".join(f"{i / 10},7.5,20\n" for i in range(100)))
     assert_one_line_error(command("fogd-replay", model, short), 65, "short.csv", "estimator window")
     under_a_file = model / "out.csv"
-    assert_one_line_error(command("fogd-replay", model, runs["cool"], "-o", under_a_file), 65, "out.csv")
+    assert_one_line_error(command("fogd-replay", model, runs["cool"], "-o", under_a_file), 74, "out.csv")  # EX_IOERR

@@ -25,7 +25,7 @@ from fogd.core.compensator import Compensator
 from fogd.core.estimator import EstimatorSettings
 from fogd.core.inputs import default_inputs
 from fogd.core.runio import read_run
-from fogd.errors import ConfigError, ModelFileError, UsageError
+from fogd.errors import ConfigError, ModelFileError, OutputError, UsageError
 from fogd.protocols import get
 from fogd.protocols.ascii import checksum
 from fogd.protocols.base import ALL_AXES, Frame
@@ -97,8 +97,9 @@ def test_a_model_write_that_fails_leaves_the_old_model_whole(tmp_path, monkeypat
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(os, "fsync", disk_full)
-    with pytest.raises(ModelFileError, match="No space left"):
+    with pytest.raises(OutputError, match=f"cannot write {path}: No space left") as raised:  # 14: 74, with the path
         modelfile.save(path, model_document(name="new", training={"notes": "x" * 100_000}))
+    assert raised.value.exit_status == 74
     monkeypatch.undo()
     assert modelfile.load(path).name == "old"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["model.json"]  # no temporary file left behind

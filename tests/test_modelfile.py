@@ -120,7 +120,7 @@ def rejected(path: Path) -> str:
 
 @pytest.mark.parametrize("method", METHODS)
 def test_save_load_predicts_the_formula(tmp_path, method):
-    path = tmp_path / "models" / f"{method}.json"
+    path = tmp_path / f"{method}.json"
     modelfile.save(path, make_doc(method))
     model = modelfile.load(path)
 

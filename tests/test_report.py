@@ -15,7 +15,7 @@ from fogd.calibration.report import SUMMARY, write_report
 from fogd.calibration.training import TrainConfig, Trained, prepare, train
 from fogd.core.inputs import default_inputs
 from fogd.core.runio import Run, read_run, write_csv
-from fogd.errors import InputError
+from fogd.errors import InputError, OutputError
 
 RATE_HZ = 10.0
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -121,6 +121,6 @@ def test_a_report_that_cannot_be_written_leaves_the_old_one_whole(
         raise OSError(errno.ENOSPC, "No space left on device")
 
     monkeypatch.setattr(Figure, "savefig", disk_full)
-    with pytest.raises(InputError, match="No space left"):
+    with pytest.raises(OutputError, match="No space left"):  # EX_IOERR (74), issue 35.14
         write_report(str(directory), trained, "pso-svr", holdouts, 60.0)
     assert {path.name: path.read_bytes() for path in directory.iterdir()} == before

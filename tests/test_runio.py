@@ -54,6 +54,7 @@ def test_round_trip_keeps_columns_rate_and_extras(tmp_path):
     temp = 20.0 + 0.1 * t
     truth = 0.002 * temp
     path = tmp_path / "sub" / "run.csv"
+    path.parent.mkdir()  # write_csv creates no directories (issue 35.1)
     write_csv(str(path), {"t_s": t, "rate_dph": rate, "temp_c": temp, "true_error_dph": truth}, {})
 
     run = read_run(path)

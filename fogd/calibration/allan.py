@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fogd.errors import DeviceError, describe_os_error
+from fogd.core.atomic import replaced
 
 BIAS_INSTABILITY_FACTOR = 0.664
 ARW_FIT_MAX_TAU_S = 10.0  # short-tau points where white rate noise dominates a FOG's curve
@@ -138,8 +138,7 @@ def plot(path: str, results: dict[str, AllanResult], title: str, unit: str = "de
     axis.legend(fontsize=8)
     figure.tight_layout()
     try:
-        figure.savefig(path, dpi=120, format="png")  # at `path` as given: no ".png" appended behind the caller's back
-    except OSError as error:
-        raise DeviceError(f"cannot write the Allan figure {describe_os_error(error)}") from None
+        with replaced(path, binary=True) as stream:  # at `path` as given: no ".png" appended behind the caller's back
+            figure.savefig(stream, dpi=120, format="png")
     finally:
         plt.close(figure)

@@ -39,6 +39,7 @@ from fogd.serving.reader import Reader
 from fogd.serving.ring import Ring
 from fogd.serving.sdnotify import Notifier
 from fogd.serving.serialio import PortOpener, open_port
+from fogd.serving.thermalstate import Thermal
 
 PROG = "fogd"
 DEMO_MODEL = demo_mode.MODEL
@@ -290,6 +291,9 @@ def serve(settings: dict[str, Any], protocol: protocols.Protocol | None, model, 
         stats_path=stats_path,
         info={"instance": instance, "port": path, "protocol": protocol.name, "out": settings["out"]},
         placement=Placement(settings["cpu"]),
+        thermal=Thermal([as_models(model)[c] for c in channels.covered], settings["rate_hz"],
+                        path=config.state_path(settings["state_file"], instance), device=f"port {path}",
+                        warming=settings["warming"], tolerance_dph=settings["warming_tolerance_dph"]),
     )
     if settings["metrics_port"] is not None:
         from fogd.serving import prometheus

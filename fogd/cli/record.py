@@ -21,14 +21,15 @@ from typing import Sequence
 
 from fogd import protocols
 from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, run
+from fogd.core.atomic import output_kind
 from fogd.core.columns import CHANNELS
 from fogd.core.numbers import positive_float, positive_int
-from fogd.errors import DeviceError, UsageError, describe_os_error
+from fogd.errors import DeviceError, UsageError
 from fogd.protocols.kvh import ANGLE_UNITS, LIN_UNITS, LINFMTS, ROTFMTS, TEMP_UNITS
 from fogd.protocols.lexer import Lexer
 from fogd.serving.daemon import RING_CAPACITY
 from fogd.serving.reader import Reader
-from fogd.serving.recorder import Recorder, chosen_channels
+from fogd.serving.recorder import Recorder, RowFile, chosen_channels
 from fogd.serving.ring import Ring
 from fogd.serving.serialio import open_port
 
@@ -105,12 +106,16 @@ def body(argv: Sequence[str] | None) -> int:
     options = {**unit, "rate_hz": args.rate_hz} if args.protocol == "kvh-a" else {}
     protocol = protocols.get(args.protocol, **options)
     channels = None if args.channels is None else chosen_channels(args.channels, protocol)
+    try:
+        output_kind(args.output)  # a directory, block device or socket, or a missing directory: refused
+    except OSError as error:
+        raise DeviceError(f"cannot write {args.output}: {error.strerror}") from None
     port = open_port(args.port, args.baud)
     try:
-        stream = open(args.output, "w", encoding="utf-8", newline="\n")
+        stream = RowFile(args.output)
     except OSError as error:
         port.close()
-        raise DeviceError(f"cannot write {describe_os_error(error)}") from None
+        raise DeviceError(f"cannot write {args.output}: {error.strerror or error}") from None
     ring = Ring(RING_CAPACITY)
     reader = Reader(lambda: open_port(args.port, args.baud), Lexer(protocol), ring, port=port)
     recorder = Recorder(stream, axis, args.rate_hz, args.decimate, channels)
@@ -123,6 +128,7 @@ def body(argv: Sequence[str] | None) -> int:
     started_s = time.monotonic()
     next_flush_s = next_status_s = started_s + min(FLUSH_INTERVAL_S, status_every_s)
     reader.start()
+    failed: OSError | None = None
     try:
         while not stop.is_set():
             now_s = time.monotonic()
@@ -134,7 +140,11 @@ def body(argv: Sequence[str] | None) -> int:
             ring.wait(IDLE_WAIT_S)
             recorder.write(ring.pop())
             if now_s >= next_flush_s:
-                stream.flush()
+                try:
+                    stream.flush()
+                except OSError as error:
+                    failed = error
+                    break
                 next_flush_s = now_s + FLUSH_INTERVAL_S
             if now_s >= next_status_s and not args.quiet:
                 line = status_line(recorder, reader, ring)
@@ -142,10 +152,17 @@ def body(argv: Sequence[str] | None) -> int:
                 next_status_s = now_s + status_every_s
     finally:
         reader.stop()
-        recorder.write(ring.pop())
-        stream.close()
+        if failed is None:
+            recorder.write(ring.pop())
+        try:
+            stream.close()
+        except OSError as error:
+            failed = failed or error
     if live:
         print(file=sys.stderr)
+    if failed is not None:  # a full disk: the file holds every row up to its last whole one
+        raise DeviceError(f"cannot write {args.output}: {failed.strerror or failed}; stopped, the file ends at its "
+                          "last whole row")  # fmt: skip
     log.info("%s: %s", args.output, status_line(recorder, reader, ring))
     return 0
 

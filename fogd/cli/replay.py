@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 import os
 import sys
 from typing import Sequence
@@ -21,7 +22,9 @@ from fogd.calibration.replay import (
 from fogd.calibration.tables import error_table
 from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, run
 from fogd.core import modelfile
-from fogd.core.atomic import refuse_inputs
+from fogd.core.atomic import check_output
+from fogd.core.compensator import Compensated, Compensator
+from fogd.core.warming import MODES, TOLERANCE_DPH, WarmingBound, mark_cold, replay_rules
 from fogd.core.channels import ChannelModels, output_columns
 from fogd.core.columns import BLOCK_S, OUTPUT_FORMATS, SINGLE_CHANNEL, channel_unit
 from fogd.core.flags import Flag
@@ -58,6 +61,15 @@ def parser() -> ArgumentParser:
         help="write a log-log figure of the overlapping Allan deviation before and after compensation",
     )  # fmt: skip
     p.add_argument("--no-allan", action="store_true", help="skip the Allan deviation summary (long runs: a few seconds)")
+    p.add_argument(
+        "--from", dest="from_s", metavar="T", type=float,
+        help="compensate from the first row at or after t_s = T as a daemon restarted there would: the rows before "
+        "it are the thermal history it finds in its state file (docs/reference/thermal-state.md); without it the "
+        "run starts cold and its first samples are flagged WARMING, as the daemon's",
+    )  # fmt: skip
+    p.add_argument("--warming", choices=MODES, default=MODES[0], help="what WARMING samples get (fogd's warming key)")
+    p.add_argument("--warming-tolerance-dph", type=positive_float, default=TOLERANCE_DPH, metavar="DPH",
+                   help="fogd's warming_tolerance_dph")
     return p
 
 
@@ -66,14 +78,14 @@ def body(argv: Sequence[str] | None) -> int:
     if args.allan_plot and os.path.isdir(args.allan_plot):
         raise UsageError(f"--allan-plot {args.allan_plot}: a directory; give a file name such as allan.png")
     for output in (args.output, args.allan_plot):
-        if output and output != "-":
-            refuse_inputs(output, [args.model, args.run])
+        if output:
+            check_output(output, [args.model, args.run])  # before the replay, not after it
     models = load_model(args.model, args.run)
     recorded = read_run(args.run)
     if models.version == modelfile.CHANNELS_VERSION:
         return _replay_channels(args, models, recorded)
     model = models[SINGLE_CHANNEL]
-    result = replay(model, recorded)
+    recorded, result = _replay_one(args, model, recorded)
     if args.output:
         write_csv(
             args.output,
@@ -120,7 +132,13 @@ def _replay_channels(args: argparse.Namespace, models: ChannelModels, recorded: 
         raise InputError(f"{args.model} compensates the channels {', '.join(models)} of an IMU; {args.run} is a "
                          "single-axis run (t_s,rate_dph,temp_c): replay it with a single-axis model")  # fmt: skip
     covered, passed = models.split(recorded.channels)
+    if args.from_s is not None:
+        raise UsageError("--from replays a single-channel model; a multi-channel run starts cold")
     results = replay_channels({channel: models[channel] for channel in models}, recorded)
+    first = models[covered[0]] if covered else next(iter(models.values()))
+    mark_cold(WarmingBound(first, recorded.rate_hz, tolerance_dph=args.warming_tolerance_dph), recorded.t_s,
+              recorded.temp_c, [results[channel] for channel in (*covered, *[c for c in results if c not in covered])],
+              args.warming)  # fmt: skip
     if args.output:
         columns: dict[str, np.ndarray] = {"t_s": recorded.t_s, "temp_c": recorded.temp_c + 0.0}
         formats = {"t_s": OUTPUT_FORMATS["t_s"], "temp_c": OUTPUT_FORMATS["temp_c"]}
@@ -159,6 +177,24 @@ def _replay_channels(args: argparse.Namespace, models: ChannelModels, recorded: 
                      channel_unit(channel))  # fmt: skip
                 print(f"wrote {path}", file=sys.stderr)
     return 0
+
+
+def _replay_one(args: argparse.Namespace, model, recorded: Run) -> tuple[Run, Compensated]:
+    """The run (from --from on) and its compensation under the daemon's thermal rules (fogd.core.warming)."""
+    start = 0 if args.from_s is None else int(np.searchsorted(recorded.t_s, args.from_s))
+    if start >= recorded.rows:
+        raise InputError(f"{args.run}: no row at or after t_s = {args.from_s:g} s (--from)")
+    compensator = Compensator(model, recorded.rate_hz)
+    if start == 0 and recorded.rows <= compensator.bank.warmup:
+        replay(model, recorded)  # its one-line error: shorter than the estimator window
+    result = replay_rules(compensator, recorded.t_s, recorded.rate_dph, recorded.temp_c, start,
+                          mode=args.warming, tolerance_dph=args.warming_tolerance_dph)  # fmt: skip
+    if start:
+        rows = slice(start, None)
+        recorded = replace(recorded, t_s=recorded.t_s[rows], rate_dph=recorded.rate_dph[rows],
+                           temp_c=recorded.temp_c[rows], extra={k: v[rows] for k, v in recorded.extra.items()},
+                           channels={k: v[rows] for k, v in recorded.channels.items()})  # fmt: skip
+    return recorded, result
 
 
 def load_model(path: str, run_path: str) -> ChannelModels:

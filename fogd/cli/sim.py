@@ -18,6 +18,7 @@ from collections.abc import Callable
 import numpy as np
 
 from fogd.cli.common import ArgumentParser
+from fogd.core.atomic import check_output
 from fogd.core.columns import ACCEL_CHANNELS, truth_column
 from fogd.core.numbers import number_in, seed
 from fogd.core.runio import write_csv
@@ -138,18 +139,17 @@ def _run(args: argparse.Namespace) -> int:
         raise UsageError(f"missing {' and '.join(missing)} (see {PROG} --help)")
     params = _params(args)
     profile = profiles.resolve(args.profile)
+    check_output(args.output)  # before the simulation, not after it
     if args.no_noise:
         params = params.without_noise()
     started = time.perf_counter()
     run = Simulation(profile, args.rate_hz, args.seed, params)
     try:
         _write(args.output, run, imu=args.imu)
-    except FogdError as error:
-        if args.output == "-" and isinstance(error.__context__, BrokenPipeError):
-            # The reader (e.g. `head`) has gone: stop quietly like other Unix filters.
-            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-            return 141
-        raise
+    except BrokenPipeError:
+        # The reader (e.g. `head`) has gone: stop quietly like other Unix filters.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     if args.output != "-":
         print(
             f"{PROG}: wrote {args.output}: {run.rows} rows, {profile.duration_s / 3600:.2f} h at "

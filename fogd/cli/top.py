@@ -27,7 +27,7 @@ ASCII_BARS = "_.-:=+*#"
 HOME_CLEAR = "\x1b[H\x1b[2J"
 # one letter per flag in the flags row, the most serious set bit winning
 FLAG_LETTERS = {Flag.RATE_INVALID: "R", Flag.TEMP_INVALID: "T", Flag.OUT_OF_DOMAIN: "O", Flag.TEMP_STALE: "S",
-                Flag.CLAMPED: "C", Flag.WARMUP: "W"}  # fmt: skip
+                Flag.CLAMPED: "C", Flag.WARMUP: "W", Flag.WARMING: "H"}  # fmt: skip (H: no thermal history)
 LEXER_SHOWN = ("bad_crc", "truncated", "bad_line", "garbage_bytes", "seq_gaps", "frames_missing")
 
 

@@ -31,7 +31,7 @@ from fogd.calibration.training import TrainConfig
 from fogd.calibration.units import Unit, read_manifest
 from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, run
 from fogd.core import modelfile
-from fogd.core.atomic import refuse_inputs
+from fogd.core.atomic import check_output, check_output_directory
 from fogd.core.columns import BLOCK_S, CHANNELS, channel_unit
 from fogd.core.estimator import EstimatorSettings
 from fogd.core.inputs import (
@@ -188,9 +188,11 @@ def body(argv: Sequence[str] | None) -> int:
     args = parser().parse_args(argv)
     args.method = args.method or ("pso-svr" if args.inputs or args.compare else "ladder")
     units = _units(args)
-    for unit in units:
+    for unit in units:  # before minutes of fitting, not after
         if unit.out:
-            refuse_inputs(unit.out, [*unit.runs, *unit.holdout])  # before minutes of fitting, not after
+            check_output(unit.out, [*unit.runs, *unit.holdout])
+    if args.report:
+        check_output_directory(args.report)
     auto = args.method == "auto"
     ladder = args.method == "ladder"
     if args.early_stop < 0:

@@ -41,6 +41,7 @@ from fogd.core.compensator import (
 )
 from fogd.core.estimator import SCALAR_CHUNK
 from fogd.core.frozen import FrozenModel, StackedModels
+from fogd.core.history import TempHistory
 from fogd.core.inputs import InputBank, InputSpec
 
 
@@ -365,6 +366,17 @@ class ChannelCompensator:
         """Forget the temperature history of every channel."""
         for compensator in self.compensators.values():
             compensator.reset()
+        self._begin()
+
+    def prime(self, history: TempHistory) -> None:
+        """Every channel's inputs as if fed the whole `history` (fogd.core.history), the temperature held its
+        newest; nothing changes for an empty history."""
+        if history.last is None:
+            return
+        for shared in self._banks.values():
+            history.prime(shared.bank)
+        for compensator in self.compensators.values():
+            compensator._held_temp_c = history.last[1]
         self._begin()
 
     def process(

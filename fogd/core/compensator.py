@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -37,6 +38,9 @@ from fogd.core.estimator import SCALAR_CHUNK
 from fogd.core.flags import Flag
 from fogd.core.frozen import FrozenModel
 from fogd.core.inputs import InputBank
+
+if TYPE_CHECKING:
+    from fogd.core.history import TempHistory
 
 TEMP_VALID_C = (-100.0, 200.0)  # a reading outside this is a broken sensor or a corrupt frame
 _TEMP_INVALID, _WARMUP, _CLAMPED = int(Flag.TEMP_INVALID), int(Flag.WARMUP), int(Flag.CLAMPED)
@@ -88,6 +92,12 @@ class Compensator:
         """Forget the temperature history (e.g. after a gap longer than the caller bridges)."""
         self.bank.reset()
         self._held_temp_c = np.nan
+
+    def prime(self, history: TempHistory) -> None:
+        """The inputs as if fed the whole `history` (fogd.core.history), the temperature held its newest."""
+        if history.last is not None:
+            history.prime(self.bank)
+            self._held_temp_c = history.last[1]
 
     def process(
         self,

@@ -12,6 +12,7 @@ class Flag(IntFlag):
     RATE_INVALID = 8  # the gyro rate is NaN/Inf or its status bit says invalid: not compensated
     TEMP_INVALID = 16  # the temperature is NaN or out of range: the last valid one is held
     OUT_OF_DOMAIN = 32  # the inputs together are far from any calibration data (joint-space guard)
+    WARMING = 64  # cold start: the inputs rest on the equilibrium assumption beyond its tolerance (fogd.core.warming)
 
 
 def describe(flags: int) -> str:

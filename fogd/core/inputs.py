@@ -378,6 +378,15 @@ class InputBank:
     def warm(self) -> bool:
         return self.count > self.warmup
 
+    @property
+    def parts(self) -> list[TempRateEstimator | LagFilter | PlayFilter | None]:
+        """Each input's streaming state (None: the temperature itself), for fogd.core.history to prime."""
+        return self._estimators
+
+    @property
+    def dequantisers(self) -> dict[tuple[float, str], Dequantiser]:
+        return self._dequantisers
+
     def reset(self) -> None:
         for estimator in self._estimators:
             if estimator is not None:

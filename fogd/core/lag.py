@@ -54,6 +54,10 @@ class LagFilter:
     def reset(self) -> None:
         self._state = None
 
+    def set_value(self, lagged_c: float) -> None:
+        """Continue as if the last sample's lagged value had been `lagged_c` (fogd.core.history primes it)."""
+        self._state = self._keep * lagged_c
+
     def update(self, temp_c: np.ndarray) -> np.ndarray:
         temp_c = np.atleast_1d(np.asarray(temp_c, dtype=np.float64))
         if temp_c.size <= SCALAR_CHUNK or (self._lfilter is None and temp_c.size <= PYTHON_CHUNK):

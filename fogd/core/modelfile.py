@@ -120,11 +120,8 @@ def save(path: str | Path, document: dict[str, Any], *, inputs: list[str] = ()) 
     else:
         from_document(document, source=str(path))
     text = json.dumps(document, indent=1, allow_nan=False)
-    try:
-        with replaced(str(path), inputs=inputs) as stream:
-            stream.write(text + "\n")
-    except OSError as error:
-        raise ModelFileError(f"cannot write model: {describe_os_error(error)}") from None
+    with replaced(str(path), inputs=inputs) as stream:  # OutputError (74) naming the path when it cannot be written
+        stream.write(text + "\n")
 
 
 def document(
@@ -316,7 +313,7 @@ def check_output(model: FrozenModel, source: str = "model") -> None:
         bad = ~(np.abs(y) <= MAX_COMP_DPH)
         if bad.any():
             raise ModelOutputError(
-                f"{source}: {printable(each.name or 'the model')[:60]} gives {y[bad][0]!r} deg/h inside its own domain "
+                f"{source}: {printable(each.name or 'the model')[:60]} gives {float(y[bad][0])!r} deg/h inside its own domain "
                 f"(the limit is {MAX_COMP_DPH:g}); a corrupt or hostile model",
                 float(y[bad][0]),
             )

@@ -31,6 +31,7 @@ MAX_GAP_PERIODS = 5.0  # a time step longer than this many sample periods is a g
 MIN_RATE_HZ, MAX_RATE_HZ = 1e-3, 100_000.0  # the daemon's range; beyond, t_s is not in seconds (or not a time)
 _TRUTH_COLUMNS = frozenset(truth_column(name) for name in (SINGLE_CHANNEL, *CHANNELS))
 LONG_LINE_BLOCK = 2048  # a line of twice this many bytes holds a whole aligned block without a newline
+READ_CHUNK_BYTES = 1 << 20
 
 
 @dataclass
@@ -81,13 +82,9 @@ class Run:
 def read_run(path: str | Path, *, max_gap_periods: float = MAX_GAP_PERIODS) -> Run:
     """Read and check a run CSV; raises InputError naming the file (and line) for anything unusable."""
     path = str(path)
-    try:
-        data = Path(path).read_bytes()
-    except OSError as error:
-        raise NoInputError(describe_os_error(error)) from None
+    data = _read_bounded(path)
     if not data.strip():
         raise InputError(f"{path}: empty file (expected a header line {','.join(RUN_COLUMNS)} and data rows)")
-    _refuse_long_lines(path, data)
     header_line, names = _header(path, data)
     channel_names = [name for name in names if name in CHANNELS]
     required = ("t_s", "temp_c") if channel_names and SINGLE_CHANNEL not in names else RUN_COLUMNS
@@ -109,7 +106,8 @@ def read_run(path: str | Path, *, max_gap_periods: float = MAX_GAP_PERIODS) -> R
             warnings.simplefilter("ignore", UserWarning)  # "input contained no data": reported below
             table = np.loadtxt(
                 io.BytesIO(data[3:] if data.startswith(codecs.BOM_UTF8) else data), delimiter=",",
-                skiprows=header_line, ndmin=2, comments=None, dtype=np.float64, encoding="utf-8",  # not utf-8-sig: 2x slower
+                # latin-1 decodes any byte: a comment's non-UTF-8 byte is skipped with it, a data row's is not a number
+                skiprows=header_line, ndmin=2, comments=None, dtype=np.float64, encoding="latin-1",
             )  # fmt: skip
     except (ValueError, UnicodeDecodeError):
         raise InputError(_first_bad_line(path, str(text), header_line, len(names))) from None
@@ -219,14 +217,60 @@ def _first_bad_line(path: str, text: str, header_line: int, width: int) -> str:
     return f"{path}: unreadable data after line {header_line}"
 
 
-def _refuse_long_lines(path: str, data: bytes) -> None:
-    """InputError for a line far longer than any run's (numpy's reader takes several times a line's size in
-    memory): any aligned block of LONG_LINE_BLOCK bytes without a newline, found without splitting the file."""
-    block = LONG_LINE_BLOCK
-    for start in range(0, max(0, len(data) - block + 1), block):
-        if b"\n" not in data[start : start + block]:
-            line = data.count(b"\n", 0, start) + 1
-            raise InputError(f"{path}:{line}: a line longer than {block} bytes; not a run CSV")
+def _read_bounded(path: str) -> bytes:
+    """The file's bytes, read a chunk at a time from anything that can be read (a FIFO, a device: a stream);
+    a line far longer than any run's is refused as soon as it is read (numpy's reader takes several times a
+    line's size in memory; /dev/zero or a 2 GB line read until MemoryError), as is UTF-16 text. Memory is the
+    file's size, which the line limit bounds by the rows kept."""
+    lines = _LineLimit(path)
+    chunks: list[bytes] = []
+    try:
+        with open(path, "rb", buffering=0) as stream:
+            while chunk := stream.read(READ_CHUNK_BYTES):
+                if not chunks:
+                    _refuse_utf16(path, chunk)
+                lines.check(chunk)
+                chunks.append(chunk)
+    except OSError as error:
+        raise NoInputError(describe_os_error(error)) from None
+    return b"".join(chunks)
+
+
+def _refuse_utf16(path: str, start: bytes) -> None:
+    head = start[:256]
+    interleaved = len(head) >= 8 and any(  # one byte of every two NUL, the others not: UTF-16 without a BOM
+        not head[side::2].strip(b"\0") and b"\0" not in head[1 - side :: 2] for side in (0, 1)
+    )
+    if head.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)) or interleaved:
+        raise InputError(f"{path}: UTF-16 text; save it as UTF-8 (a run CSV is plain ASCII)")
+
+
+class _LineLimit:
+    """InputError for a line far longer than any run's: any aligned block of LONG_LINE_BLOCK bytes without a
+    newline (a line of twice that holds one), checked chunk by chunk as the file is read."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+        self.pending = b""  # the file after the last whole block checked
+        self.newlines = 0  # before it
+
+    def check(self, chunk: bytes) -> None:
+        text, block = self.pending + chunk, LONG_LINE_BLOCK
+        if b"\0" in chunk:
+            line = self.newlines + text.count(b"\n", 0, text.index(b"\0")) + 1
+            raise InputError(f"{self.path}:{line}: a NUL byte; not a text file (a device, or a binary file?)")
+        whole = len(text) // block * block
+        for start in range(0, whole, block):
+            piece = text[start : start + block]
+            if b"\n" not in piece:
+                line = self.newlines + text.count(b"\n", 0, start) + 1
+                if b"\r" in piece:
+                    raise InputError(
+                        f"{self.path}:{line}: CR line endings (an old Mac text file); save it with LF line endings"
+                    )
+                raise InputError(f"{self.path}:{line}: a line longer than {block} bytes; not a run CSV")
+        self.newlines += text.count(b"\n", 0, whole)
+        self.pending = text[whole:]
 
 
 def _check_time(path: str, t_s: np.ndarray, text: _Text, header_line: int, max_gap_periods: float) -> float:
@@ -265,23 +309,13 @@ def _line_of(row: int, text: _Text, header_line: int) -> int:
     return [number for number, line in enumerate(lines, start=header_line + 1) if line][int(row)]
 
 
-def open_output(path: str) -> IO[str]:
-    """A text stream for `path`, or stdout for '-'; raises InputError if it cannot be created."""
-    if path == "-":
-        return sys.stdout
-    try:
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        return open(path, "w", newline="\n", encoding="utf-8")
-    except OSError as error:
-        raise InputError(f"cannot write {path}: {error.strerror or error}") from None
-
-
 def write_csv(
     path: str, columns: dict[str, np.ndarray], formats: dict[str, str], *, comments: list[str] = (), inputs: list[str] = ()
 ) -> None:
     """Write equal-length columns as CSV (header from the dict's keys), in chunks to bound memory. A file is
-    replaced whole (fogd.core.atomic): a failed write leaves the old one as it was; an output that is one of
-    `inputs` is refused."""
+    replaced whole, '-', a FIFO or a character device written as a stream (fogd.core.atomic): a failed write
+    leaves the old file as it was and is an OutputError naming `path`; an output that is one of `inputs` is
+    refused."""
     names = list(columns)
     length = len(next(iter(columns.values())))
     fmt = ",".join(formats.get(name, "%.9g") for name in names)
@@ -294,15 +328,8 @@ def write_csv(
             block = np.column_stack([np.asarray(columns[name][start:stop], dtype=np.float64) for name in names])
             np.savetxt(stream, block, fmt=fmt, delimiter=",")
 
-    try:
-        if path == "-":
-            write(sys.stdout)
-            sys.stdout.flush()
-            return
-        with replaced(path, inputs=inputs) as stream:
-            write(stream)
-    except OSError as error:
-        raise InputError(f"cannot write {path}: {describe_os_error(error)}") from None
+    with replaced(path, inputs=inputs) as stream:
+        write(stream)
 
 
 def _chunks(length: int, size: int) -> Iterator[tuple[int, int]]:

@@ -14,6 +14,7 @@ from fogd.core.atomic import read_regular
 
 MAX_YAML_NODES = 10_000
 MAX_SCALAR_CHARS = 1024
+NEWLINE = b"\n"
 
 
 class YamlFileError(ValueError):
@@ -26,6 +27,7 @@ def read_yaml(path: str, what: str, max_bytes: int = 1 << 20) -> Any:
     text = read_regular(path, max_bytes)
     if len(text) > max_bytes:
         raise YamlFileError(f"{path}: larger than {max_bytes // 1024} KiB; not {what}")
+    _refuse_bytes(path, text, what)
     loader = type("Loader", (_StrictLoader,), {"what": what})
     try:
         return yaml.load(text, Loader=loader)  # noqa: S506 (a SafeLoader, bounded)
@@ -34,9 +36,26 @@ def read_yaml(path: str, what: str, max_bytes: int = 1 << 20) -> Any:
     except yaml.YAMLError as error:
         where = getattr(error, "problem_mark", None)
         line = f":{where.line + 1}" if where is not None else ""
-        raise YamlFileError(f"{path}{line}: not valid YAML ({getattr(error, 'problem', None) or error})") from None
+        problem = " ".join(str(getattr(error, "problem", None) or error).split())  # one line, whatever YAML says
+        raise YamlFileError(f"{path}{line}: not valid YAML ({problem})") from None
     except RecursionError:
         raise YamlFileError(f"{path}: nested too deeply; not {what}") from None
+
+
+def _refuse_bytes(path: str, text: bytes, what: str) -> None:
+    """YamlFileError naming the line of a NUL or a byte that is not UTF-8 (PyYAML's own message takes two lines
+    and counts characters, not lines)."""
+    nul = text.find(b"\0")
+    try:
+        text.decode("utf-8")
+        bad = None
+    except UnicodeDecodeError as error:
+        bad = error.start
+    if nul >= 0 and (bad is None or nul <= bad):
+        raise YamlFileError(f"{path}:{text.count(NEWLINE, 0, nul) + 1}: a NUL byte; not {what}")
+    if bad is not None:
+        raise YamlFileError(f"{path}:{text.count(NEWLINE, 0, bad) + 1}: byte 0x{text[bad]:02x} is not UTF-8; save the "
+                            "file as UTF-8")  # fmt: skip
 
 
 class _StrictLoader(yaml.SafeLoader):

@@ -32,8 +32,10 @@ class LexerCounters:
     garbage_bytes: int = 0
     frame_bytes: int = 0  # bytes inside accepted frames: bytes fed = frame_bytes + garbage_bytes + buffered
     seq_gaps: int = 0  # jumps in a sequence counter
-    frames_missing: int = 0  # frames lost in those jumps (modulo the counter's wrap: 128 for KVH)
-    seq_repeats: int = 0  # a sequence number equal to the previous one
+    # frames lost in those jumps, modulo the counter's wrap: KVH's counter has 7 bits, so a loss of 128 frames
+    # in a row counts nothing and a loss of 127 (or 255, ...) reads as a repeat; it cannot tell them apart
+    frames_missing: int = 0
+    seq_repeats: int = 0  # a sequence number equal to the previous one (on KVH, also a loss of 127 frames)
     invalid_axes: int = 0  # present axes marked invalid by a status bit or carrying NaN/Inf
     invalid_temps: int = 0  # temperatures that are NaN/Inf
     suspect_frames: int = 0  # frames of an unknown type whose sequence number does not follow (a false header

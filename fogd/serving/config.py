@@ -147,6 +147,17 @@ OPTIONS = (
            "together on the CPU fogd starts on and moves them when other processes keep it busy; a number keeps "
            "them there; 'any' lets the kernel place each thread (together they cost less CPU: one cache, no "
            "cross-CPU wake-ups) (default: %(default)s)", metavar="auto|any|N"),
+    Option("state_file", _optional_path, "path", "auto", "the thermal state (temperature history) kept across "
+           "restarts, written atomically every few seconds and at stop (docs/reference/thermal-state.md); 'auto': "
+           f"$STATE_DIRECTORY/<instance>-thermal.json when systemd gives a state directory, else none; 'none' "
+           "disables it (every start is then a cold start) (default: %(default)s)", metavar="PATH"),
+    Option("warming", _text, "choice", "compensate", "what a cold start's WARMING samples get: 'compensate' "
+           "(compensated and flagged), 'fallback' (the domain guard's linear fallback where the model has one, "
+           "else passed), 'pass' (passed through uncompensated) (default: %(default)s)",
+           choices=("compensate", "fallback", "pass")),
+    Option("warming_tolerance_dph", number_in(0.0, 1e6, "deg/h", low_open=True), "number", 0.002, "a cold start's "
+           "samples are flagged WARMING while the equilibrium assumption can cost more than this (deg/h; default: "
+           "%(default)s)", "deg/h", "DPH"),
     Option("metrics_address", _address, "text", "127.0.0.1", "address the metrics endpoint binds to "
            "(default: %(default)s; anything else exposes it beyond this machine)", metavar="ADDR"),
 )
@@ -283,6 +294,15 @@ def check(settings: dict[str, Any], *, demo: bool) -> None:
 def instance_stats_path(instance: str) -> str:
     """Where a daemon named `instance` writes its stats by default: <runtime dir>/<instance>.json."""
     return os.path.join(RUNTIME_DIR, f"{instance}.json")
+
+
+def state_path(setting: str | None, instance: str) -> str | None:
+    """The thermal state file: the setting, or for 'auto' <$STATE_DIRECTORY>/<instance>-thermal.json when systemd
+    set a state directory (StateDirectory=), else none."""
+    if setting != "auto":
+        return setting
+    directory = os.environ.get("STATE_DIRECTORY", "").split(":")[0]
+    return os.path.join(directory, f"{instance}-thermal.json") if directory else None
 
 
 def stats_path(setting: str | None, instance: str) -> str | None:

@@ -34,7 +34,7 @@ import numpy as np
 
 from fogd import __version__
 from fogd.core.channels import ChannelCompensator, ChannelModels
-from fogd.core.compensator import Compensated
+from fogd.core.compensator import TEMP_VALID_C, Compensated
 from fogd.core.estimator import SCALAR_CHUNK
 from fogd.core.flags import Flag, describe
 from fogd.core.frozen import FrozenModel
@@ -48,6 +48,7 @@ from fogd.serving.reader import Reader
 from fogd.serving.ring import RATE_KINDS, TEMP_KINDS, Ring
 from fogd.serving.sdnotify import Notifier
 from fogd.serving.statsfile import write_stats
+from fogd.serving.thermalstate import SAVE_EVERY_S, Thermal
 
 log = logging.getLogger("fogd.daemon")
 status_log = logging.getLogger("fogd.status")
@@ -154,6 +155,7 @@ class LoopCounters:
     samples_compensated: int = 0
     samples_out_of_domain: int = 0  # compensated by the domain guard's linear fallback (OUT_OF_DOMAIN)
     samples_clamped: int = 0  # with an input clamped to the calibrated range (CLAMPED)
+    samples_warming: int = 0  # a cold start's inputs rest on the equilibrium assumption (WARMING; serving.thermalstate)
     reader_deaths: int = 0
     writer_deaths: int = 0
     reloads: int = 0
@@ -215,6 +217,7 @@ class Daemon:
         stats_path: str | None = None,
         info: dict | None = None,
         placement: Placement | None = None,
+        thermal: Thermal | None = None,
     ) -> None:
         self.reader = reader
         self.writer = writer
@@ -251,6 +254,7 @@ class Daemon:
         self._encode_error_logged = False
         self._reload_started_s = 0.0
         self.history: deque[tuple[float, ...]] = deque(maxlen=HISTORY_POINTS)
+        self.thermal = thermal  # the temperature history kept across reloads and restarts, and WARMING
 
     def _compensator(self, models: ChannelModels, rate_hz: float) -> ChannelCompensator:
         """The one compensator of every covered channel, as fogd-replay builds it; each model's window is
@@ -281,7 +285,7 @@ class Daemon:
     def run(self) -> None:
         started_s = self.started_s = time.monotonic()
         next_status_s = started_s + self.status_interval_s
-        next_notify_s = next_stats_s = next_pet_s = started_s
+        next_notify_s = next_stats_s = next_pet_s = next_save_s = started_s
         pet_every_s = self.notifier.watchdog_interval_s
         switch_interval_s = sys.getswitchinterval()
         sys.setswitchinterval(SWITCH_INTERVAL_S)
@@ -326,6 +330,9 @@ class Daemon:
                                          float(latest.flags)))  # fmt: skip
                     write_stats(self.stats_path, self.snapshot())
                     next_stats_s = now_s + STATS_EVERY_S
+                if self.thermal is not None and now_s >= next_save_s:
+                    self.thermal.save()
+                    next_save_s = now_s + SAVE_EVERY_S
         finally:
             self.notifier.send("STOPPING=1")
             self.reader.stop()
@@ -333,6 +340,8 @@ class Daemon:
             if not self.writer.close(FLUSH_TIMEOUT_S):
                 log.warning("output did not take the last frames within %.1f s", FLUSH_TIMEOUT_S)
             status_log.info("final: %s", self.status_line())
+            if self.thermal is not None:
+                self.thermal.save(wait=True)
             if self.stats_path is not None:
                 write_stats(self.stats_path, {**self.snapshot(), "running": False})
             sys.setswitchinterval(switch_interval_s)
@@ -409,12 +418,12 @@ class Daemon:
         model, models = reload.model, as_models(reload.model)
         new = reload.compensator or self._compensator(models, self.rate_hz)
         kept = _carry_state(self.compensator, new)
+        state = "kept (same inputs)" if kept else "reset (inputs differ): warm-up again"
+        if self.thermal is not None:  # the history primes new inputs (serving.thermalstate)
+            state = self.thermal.reloaded([models[c] for c in self.plan.covered], new, prime=not kept)
         self.compensator, self.model, self.models = new, model, models
         self.counters.reloads += 1
-        log.warning(
-            "reloaded: model %s (%s); estimator state %s", printable(model.name), method(models),
-            "kept (same inputs)" if kept else "reset (inputs differ): warm-up again",
-        )  # fmt: skip
+        log.warning("reloaded: model %s (%s); estimator state %s", printable(model.name), method(models), state)
 
     def _drain(self) -> None:
         """Compensate and hand on every batch in the ring."""
@@ -463,6 +472,8 @@ class Daemon:
         """One channel-compensator call for every rate sample in `frames` (received at `t_rx_s`), every
         covered channel at once; a few frames (a batch at real rates is one) go row by row through the
         compensator's pre-bound `process_row`, in plain Python."""
+        if self.thermal is not None and self.thermal.pending:
+            self._thermal_start(frames)
         if len(frames) <= SCALAR_CHUNK:
             return self._compensate_rows(frames, t_rx_s)
         samples = self.temperature.channel_samples(frames, t_rx_s, self.plan.sources)
@@ -478,6 +489,16 @@ class Daemon:
         comp = comps[names[0]]
         self._count_domain(comp.flags if len(names) == 1 else _any_flags(comps.values()))
         return self._batch(frames, t_rx_s, rows, samples.device_s, samples.values[0], comp, comps)
+
+    def _thermal_start(self, frames: list[Frame]) -> None:
+        """At the first valid temperature: restore the thermal state (or start cold) before it is compensated."""
+        low_c, high_c = TEMP_VALID_C
+        for frame in frames:
+            if frame.kind in TEMP_KINDS and frame.temp_c is not None and low_c <= frame.temp_c <= high_c:
+                device = frame.t_s is not None and frame.t_s == frame.t_s
+                t_s = frame.t_s if device else self.clock.count / self.rate_hz
+                self.thermal.start(t_s, device, frame.temp_c, self.compensator)
+                return
 
     def _compensate_rows(self, frames: list[Frame], t_rx_s: list[float]) -> OutputBatch:
         """`compensate` of a few frames, one `process_row` per rate frame; the same floats and flags."""
@@ -549,6 +570,8 @@ class Daemon:
         if rows:
             self._newest = (readings, comp, comps)  # made into `latest` only when someone reads it
         times = self.clock.times(device_s)
+        if self.thermal is not None:
+            self.counters.samples_warming += self.thermal.observe(times, comp, comps)
         t_s = times if len(frames) <= SCALAR_CHUNK else np.array(times, dtype=np.float64)
         return OutputBatch(frames, rows, t_s, comp, None if self.plan.single else comps)
 
@@ -660,6 +683,7 @@ class Daemon:
             "latency_s": {"last": self.latency.last_s, "max_since_status": self.latency.max_s},
             "counters": self.counters_dict(),
             "domain_shares": self.domain_shares(),
+            "thermal": self.thermal.status() if self.thermal is not None else None,
             "history": {name: [point[i] for point in list(self.history)] for i, name in enumerate(HISTORY_FIELDS)},
             "status": self.status_line(),
         }

@@ -53,8 +53,9 @@ def render(snapshot: dict[str, Any]) -> str:
     metric("fogd_samples_compensated_total", "counter", "Rate samples compensated.", [("", loop["samples_compensated"])])
     metric("fogd_samples_flagged_total", "counter",
            "Rate samples compensated by the domain guard's linear fallback (out_of_domain) or with an input "
-           "clamped to the calibrated range (clamped).",
-           [('{flag="out_of_domain"}', loop["samples_out_of_domain"]), ('{flag="clamped"}', loop["samples_clamped"])])
+           "clamped to the calibrated range (clamped), or resting on a cold start's equilibrium assumption (warming).",
+           [('{flag="out_of_domain"}', loop["samples_out_of_domain"]), ('{flag="clamped"}', loop["samples_clamped"]),
+            ('{flag="warming"}', loop.get("samples_warming", 0))])
     shares = snapshot["domain_shares"]
     metric("fogd_samples_flagged_share", "gauge", "Share of the rate samples compensated since start with that flag.",
            [(f'{{flag="{name}"}}', shares[name]) for name in ("out_of_domain", "clamped")])

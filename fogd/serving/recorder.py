@@ -5,6 +5,7 @@ decimated, plus what its status line shows.
 
 from __future__ import annotations
 
+import os
 from typing import IO, Sequence
 
 import numpy as np
@@ -74,6 +75,44 @@ class Recorder:
         whole = joined[0].size // self.decimate * self.decimate
         self._pending = tuple(column[whole:] for column in joined)
         return tuple(column[:whole].reshape(-1, self.decimate).mean(axis=1) for column in joined)
+
+
+class RowFile:
+    """The CSV being recorded, written in whole rows: text is kept until `flush`, which writes it all; a write
+    that fails (a full disk, a file-size limit) cuts the file back to the end of the last row that fitted, so
+    what is on disk is always a run fogd-replay reads, then raises the OSError."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+        self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOCTTY | os.O_CLOEXEC, 0o666)
+        self._pending: list[str] = []
+        self.whole_bytes = 0  # on disk, ending at a row's end
+
+    def write(self, text: str) -> None:
+        self._pending.append(text)
+
+    def flush(self) -> None:
+        data = "".join(self._pending).encode("utf-8")
+        self._pending.clear()
+        done = 0
+        try:
+            while done < len(data):
+                done += os.write(self._fd, data[done:])
+        except OSError:
+            self.whole_bytes += data.rfind(b"\n", 0, done) + 1
+            try:
+                os.ftruncate(self._fd, self.whole_bytes)  # drop the part of a row that fitted
+            except OSError:
+                pass  # a FIFO or a device: nothing to cut back
+            raise
+        self.whole_bytes += done
+
+    def close(self) -> None:
+        """Flush what is left and close; the descriptor is closed even when the flush fails."""
+        try:
+            self.flush()
+        finally:
+            os.close(self._fd)
 
 
 def chosen_channels(text: str, protocol: Protocol) -> list[str]:

@@ -10,6 +10,7 @@ import json
 import logging
 import math
 import os
+import tempfile
 import time
 from typing import Any
 
@@ -33,9 +34,14 @@ def _clean(value: Any) -> Any:
 
 def write_stats(path: str, snapshot: dict[str, Any]) -> bool:
     """Replace `path` with `snapshot` as JSON; False (logged once per path) when it cannot be written."""
-    temporary = f"{path}.{os.getpid()}.tmp"
+    temporary = None
     try:
-        with open(temporary, "w", encoding="utf-8") as stream:
+        # a random name made with O_EXCL|O_NOFOLLOW: a link or FIFO planted at a predictable name (stats files
+        # live in /tmp in the README's example) is never followed, written or waited on
+        directory, name = os.path.split(path)
+        fd, temporary = tempfile.mkstemp(dir=directory or ".", prefix=f".{name}.", suffix=".tmp")
+        os.fchmod(fd, 0o644)  # readable by fogd-top and --status of other users, as before
+        with os.fdopen(fd, "w", encoding="utf-8") as stream:
             json.dump(_clean(snapshot), stream, allow_nan=False, separators=(",", ":"))
             stream.write("\n")
         os.replace(temporary, path)
@@ -44,7 +50,8 @@ def write_stats(path: str, snapshot: dict[str, Any]) -> bool:
             log.warning("cannot write stats file %s", describe_os_error(error))
             _failed_paths.add(path)
         try:
-            os.unlink(temporary)
+            if temporary is not None:
+                os.unlink(temporary)
         except OSError:
             pass
         return False
@@ -141,5 +148,17 @@ def describe(snapshot: dict[str, Any]) -> str:
             f"latency {number(1e3 * latency['last'] if isinstance(latency.get('last'), (int, float)) else None, '.1f')} ms",
             held_out_text(model),
             str(snapshot.get("status", "")),
+            *_thermal_lines(snapshot.get("thermal")),
         ]
     )
+
+
+def _thermal_lines(thermal: Any) -> list[str]:
+    """The thermal state's line (serving.thermalstate): how the run started and whether it is still WARMING."""
+    if not isinstance(thermal, dict):
+        return []
+    warming = thermal.get("warming")
+    bound = thermal.get("bound_dph")
+    return [f"thermal state: {thermal.get('started') or 'waiting for the first temperature'}"
+            f"{', WARMING' + (f' (bound {bound:.2g} deg/h)' if isinstance(bound, (int, float)) else '') if warming else ''}, "
+            f"{thermal.get('history_points')} points of history, state file {thermal.get('state_file') or 'none'}"]

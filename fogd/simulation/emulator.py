@@ -17,6 +17,7 @@ import logging
 import math
 import os
 import random
+import secrets
 import select
 import struct
 import termios
@@ -31,6 +32,7 @@ from typing import Protocol as TypingProtocol
 import numpy as np
 
 from fogd import protocols
+from fogd.core.atomic import output_kind
 from fogd.core.columns import ACCEL_CHANNELS, GYRO_CHANNELS, SINGLE_CHANNEL
 from fogd.core.runio import Run
 from fogd.errors import (
@@ -38,6 +40,7 @@ from fogd.errors import (
     DeviceError,
     FogdError,
     InputError,
+    OutputError,
     describe_os_error,
 )
 from fogd.protocols.base import ALL_AXES, NAN, NO_AXES, Z_ONLY, Frame, FrameError
@@ -293,12 +296,17 @@ def point_link(link: str, target: str) -> None:
     """Make `link` a symlink to `target`, replacing an old link atomically (never a regular file)."""
     if os.path.lexists(link) and not os.path.islink(link):
         raise DeviceError(f"{link}: exists and is not a symlink; refusing to replace it")
-    temporary = f"{link}.{os.getpid()}.{threading.get_ident()}.tmp"
+    directory, name = os.path.split(link)
+    temporary = os.path.join(directory, f".{name}.{secrets.token_hex(8)}.tmp")  # random: nothing planted sits there
     try:
-        os.symlink(target, temporary)
-        os.replace(temporary, link)
-    except OSError as error:
-        raise DeviceError(f"cannot create link {describe_os_error(error)}") from None
+        os.symlink(target, temporary)  # never follows: fails if anything is at that name
+        try:
+            os.replace(temporary, link)
+        except OSError:
+            os.unlink(temporary)
+            raise
+    except OSError as error:  # the link's path, not the pty's (/dev/pts/N is fine; the link's directory is not)
+        raise DeviceError(f"cannot create link {link}: {error.strerror or error}") from None
 
 
 def remove_link(link: str, target: str) -> None:
@@ -402,9 +410,10 @@ class Emulator:
         """Open the pty (and the ledger), start streaming on a thread; returns the slave's path."""
         if self.ledger_path is not None:
             try:
+                output_kind(self.ledger_path)  # a directory, block device or socket, or a missing directory: refused
                 self._ledger = open(self.ledger_path, "w", encoding="utf-8")
             except OSError as error:
-                raise InputError(f"cannot write ledger {describe_os_error(error)}") from None
+                raise OutputError(f"cannot write ledger {self.ledger_path}: {error.strerror or error}") from None
         try:
             self.pty = open_pty(self.link)
         except BaseException:
