@@ -93,7 +93,7 @@ def test_replay_compensates_the_model_channels_and_passes_the_others_through(run
 def test_swarm_per_channel_in_parallel_with_a_report(runs, tmp_path, capsys):
     model, report = tmp_path / "svr.json", tmp_path / "report"
     status, stdout, err = main(train_cli, [runs["heat"], runs["cool"], "-o", model, "--channels", "rate_x_dph,accel_z_g",
-                                           "--particles", "6", "--iterations", "4", "--jobs", "2", "-q",
+                                           "--method", "pso-svr", "--particles", "6", "--iterations", "4", "--jobs", "2", "-q",
                                            "--report", report], capsys)  # fmt: skip
     assert status == 0, err
     assert stdout.index("=== rate_x_dph ===") < stdout.index("=== accel_z_g ===")
@@ -204,7 +204,8 @@ def test_manifest_through_joblibs_dask_backend_on_a_local_cluster(runs, tmp_path
     path = manifest(tmp_path, runs, UNITS)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
             Client(cluster) as client, parallel_config(backend="dask"):  # fmt: skip
-        status, _, err = main(train_cli, ["--manifest", path, "--particles", "6", "--iterations", "4", "--jobs", "2", "-q"], capsys)
+        status, _, err = main(train_cli, ["--manifest", path, "--method", "pso-svr", "--particles", "6", "--iterations", "4",
+                                          "--jobs", "2", "-q"], capsys)  # fmt: skip
         assert client.run(lambda: 1)  # the workers were there all along
     assert status == 0, err
     imu = modelfile.load_channels(tmp_path / "imu-1.json")

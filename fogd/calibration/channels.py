@@ -22,6 +22,7 @@ from typing import Any
 from joblib import Parallel, delayed
 
 from fogd.calibration.features import Inputs, run_inputs, shared_inputs
+from fogd.calibration.ladder import climb
 from fogd.calibration.models import METHODS
 from fogd.calibration.models.folds import MIN_RUNS_LEFT_OUT, drift_rmse
 from fogd.calibration.replay import replay, replay_table
@@ -44,6 +45,9 @@ class Settings:
     auto: bool = False
     compare: bool = False
     log: bool = True  # --method auto's progress lines
+    ladder: bool = False  # the default: the model chosen from fogd.calibration.ladder's rungs
+    average_s: float = 0.5  # the eq. 16 estimator's, for the ladder's rate inputs
+    step_s: float = 0.0
 
 
 @dataclass
@@ -166,7 +170,21 @@ def _fit(job: ChannelJob, settings: Settings, result: ChannelFit) -> None:
     unit = channel_unit(job.channel)
     config = dataclasses.replace(config, unit=unit)
     runs = job.runs
-    if settings.auto:
+    nothing_dph = None  # the uncompensated drift on the held-out folds (the ladder's), else the blocks' own
+    if settings.ladder:
+        ladder = climb(runs, config, log=say.err if settings.log else None, unit=unit,
+                       average_s=settings.average_s, step_s=settings.step_s)  # fmt: skip
+        result.label = f"ladder: {ladder.chosen.rung.name}"
+        result.trained = {result.label: ladder.trained}
+        result.chosen = ladder.trained
+        result.chosen.document["metrics"]["held_out"] = ladder.held_out()
+        result.chosen.document["training"]["ladder"] = {"rule": "one standard error", "folds": ladder.folds,
+                                                        "rungs": [s.row() for s in ladder.scored]}  # fmt: skip
+        result.selection = ladder.table(unit)
+        say.out(ladder.line(unit))
+        result.held_out_dph = ladder.chosen.drift_rmse_dph
+        nothing_dph = ladder.uncompensated_dph
+    elif settings.auto:
         best, candidates = select(runs, config, settings.sets, log=say.err if settings.log else None, unit=unit)
         result.label = f"auto: {best.label}"
         result.trained = {result.label: best.trained}
@@ -208,7 +226,7 @@ def _fit(job: ChannelJob, settings: Settings, result: ChannelFit) -> None:
     for holdout in job.holdouts:
         say.out(f"\nTable 4: {holdout.name}, not used for training (block means about the run mean)")
         say.out(error_table(holdout_rows(result.trained, holdout, block_s), unit=unit))
-    result.worse = worse_than_nothing(chosen, result.held_out_dph, unit)
+    result.worse = worse_than_nothing(chosen, result.held_out_dph, unit, nothing_dph)
 
 
 def uncompensated_drift_dph(trained: Trained) -> float:
@@ -216,9 +234,12 @@ def uncompensated_drift_dph(trained: Trained) -> float:
     return drift_rmse(trained.error_dph, trained.data.groups)
 
 
-def worse_than_nothing(trained: Trained, held_out_dph: float | None, unit: str = "deg/h") -> str | None:
-    """What to say when the model's held-out drift exceeds the drift it is meant to remove, else None."""
-    uncompensated_dph = uncompensated_drift_dph(trained)
+def worse_than_nothing(trained: Trained, held_out_dph: float | None, unit: str = "deg/h",
+                       uncompensated_dph: float | None = None) -> str | None:  # fmt: skip
+    """What to say when the model's held-out drift exceeds the drift it is meant to remove (`uncompensated_dph`,
+    scored on the same folds, or else the calibration blocks' own drift), else None."""
+    if uncompensated_dph is None:
+        uncompensated_dph = uncompensated_drift_dph(trained)
     if held_out_dph is None or held_out_dph <= uncompensated_dph:
         return None
     return (f"the model's held-out drift ({held_out_dph:.3e} {unit}) exceeds the uncompensated drift "

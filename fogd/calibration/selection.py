@@ -128,7 +128,7 @@ def select(runs, config: TrainConfig, sets: list[tuple[InputSpec, ...]], familie
             started = time.perf_counter()
             try:
                 held_out_rmse_dph = nested_rmse(method, data, data.rate_dph - reference, options, shifted_columns(specs))
-                trained = _fit_family(runs, set_config, prepared, method)
+                trained = fit_family(runs, set_config, prepared, method)
             except InputError as error:  # too few rows for this family: say so, keep going
                 if log:
                     log(f"auto: {method} [{describe_inputs(specs)}] skipped: {error}")
@@ -162,9 +162,15 @@ def nested_rmse(method: str, data: TrainingSet, error_dph: np.ndarray, options: 
     """Held-out drift RMSE (deg/h, about each run's mean) of `method` where each held-out fold is predicted by
     a model tuned and fitted on the other folds only, its inputs clamped to their range as the daemon clamps
     them (`shifted`: the temperature columns moved together, fogd.core.inputs.shifted_columns)."""
-    residual = np.empty_like(error_dph)
+    residual = nested_residual(method, data, error_dph, options, shifted, folds(data.groups, options.folds))
+    return drift_rmse(residual, data.groups)
+
+
+def nested_residual(method: str, data: TrainingSet, error_dph: np.ndarray, options: FitOptions,
+                    shifted: tuple[int, ...], splits: list) -> np.ndarray:  # fmt: skip
+    """Each test row's held-out residual (deg/h) over `splits`, which must test every row once (`nested_rmse`)."""
+    residual = np.full_like(error_dph, np.nan)
     inner = dataclasses.replace(options, progress=False)
-    splits = folds(data.groups, options.folds)
     for train_rows, test_rows in splits:
         x_train = data.x[train_rows]
         fitted = _tuned(method, x_train, error_dph[train_rows], data.groups[train_rows], inner)
@@ -173,7 +179,7 @@ def nested_rmse(method: str, data: TrainingSet, error_dph: np.ndarray, options: 
         in_sample = fitted.y_mean + fitted.y_scale * fitted.estimator.predict((x_train - fitted.x_mean) / fitted.x_scale)
         levels = run_levels(error_dph[train_rows] - in_sample, data.groups[train_rows], data.groups[test_rows])
         residual[test_rows] = predicted + levels - error_dph[test_rows]
-    return drift_rmse(residual, data.groups)
+    return residual
 
 
 def _tuned(method: str, x: np.ndarray, error_dph: np.ndarray, groups: np.ndarray, options: FitOptions) -> Fitted:
@@ -194,7 +200,7 @@ def _tuned(method: str, x: np.ndarray, error_dph: np.ndarray, groups: np.ndarray
     return best
 
 
-def _fit_family(runs, config: TrainConfig, prepared, method: str) -> Trained:
+def fit_family(runs, config: TrainConfig, prepared, method: str) -> Trained:
     """The candidate's model on all the runs (ls-poly with the terms and order its folds prefer)."""
     config = dataclasses.replace(config, method=method)
     if method == "ls-poly":

@@ -173,7 +173,7 @@ def render(snapshot: dict[str, Any], path: str, *, width: int = 60, bars: str = 
         f"up {_number(snapshot.get('uptime_s'), '.0f', 's')}  {time.strftime('%H:%M:%S')}",
         f"port     {snapshot.get('port', '?')} ({snapshot.get('protocol', '?')}) {connected}   "
         f"out {snapshot.get('out', '?')}",
-        f"model    {model.get('name', '?')} ({model.get('method', '?')})",
+        f"model    {model.get('name', '?')} ({model.get('method', '?')})  {statsfile.held_out_text(model)}",
         f"rate     {_rate_text(snapshot.get('rate'))}",
         f"frames   in {frames_in}  out {writer.get('frames_written', 0)}  dropped out {dropped_out}  "
         f"ring overruns {counters.get('ring_overruns', 0)}  reconnects {reader.get('reconnects', 0)}",

@@ -15,6 +15,7 @@ from fogd.calibration.channels import (
     fit_channels,
     unit_document,
 )
+from fogd.calibration.ladder import RUNGS
 from fogd.calibration.models import FITNESSES, METHODS, FitOptions
 from fogd.calibration.models.coil import MIXES, PRIORS, SIGNED_MIX_GAIN
 from fogd.calibration.models.least_squares import POLY_TERMS
@@ -49,6 +50,8 @@ from fogd.errors import (
 )
 
 PROG = "fogd-train"
+LADDER_PARTICLES = 20  # the ladder's swarms (one per held-out fold, and the final fit's if the SVR is chosen)
+EARLY_STOP = 10  # iterations without improvement; bench_train.py measures what it costs against the paper's swarm
 
 
 def parser() -> ArgumentParser:
@@ -75,8 +78,12 @@ def parser() -> ArgumentParser:
                    "units: a list of {name, runs, channels (optional), holdout (optional), out (optional)}, "
                    "paths relative to the manifest")  # fmt: skip
     p.add_argument(
-        "--method", choices=(*METHODS, "auto"), default="pso-svr",
-        help="model family; auto: choose the family and the input set by nested held-out error (leave-one-run-out, "
+        "--method", choices=("ladder", *METHODS, "auto"), default=None,
+        help="model family (default: ladder; pso-svr when --inputs or --compare is given); ladder: the simplest of linear [temp,rate@50] (IEEE 952), its static curve, "
+        "the coil trend over the lag bank and that trend under PSO-SVR whose held-out drift is within one standard "
+        "error of the best's (leave-one-run-out with three runs or more, else --folds time folds of every run, a lag "
+        "apart; it says "
+        "what it chose and why in one line, and the model file keeps the estimate); auto: choose the family and the input set by nested held-out error (leave-one-run-out, "
         "or blocked time folds for one run; each family tuned without the fold it is scored on) among linear, "
         "ls-poly, rbf-nn, pso-svr on the --auto-inputs sets",
     )  # fmt: skip
@@ -129,9 +136,13 @@ def parser() -> ArgumentParser:
         "rates, its strength the calibration blocks' most likely) or 'none' (plain least squares)",
     )  # fmt: skip
     p.add_argument("--particles", type=positive_int, default=None,
-                   help=f"PSO population (default 60 as the paper; {AUTO_PARTICLES} inside --method auto)")
+                   help=f"PSO population (default {LADDER_PARTICLES} in the ladder, 60 as the paper with --method pso-svr, "
+                   f"{AUTO_PARTICLES} inside --method auto)")  # fmt: skip
     p.add_argument("--iterations", type=positive_int, default=None,
-                   help=f"PSO iterations (default 100 as the paper; {AUTO_ITERATIONS} inside --method auto)")
+                   help=f"PSO iterations at most (default 100 as the paper; {AUTO_ITERATIONS} inside --method auto)")
+    p.add_argument("--early-stop", type=int, default=EARLY_STOP, metavar="N",
+                   help="stop a swarm when its best fitness has not improved by 0.1 %% for N iterations; 0: never (the "
+                   "paper's swarm: --particles 60 --iterations 100 --early-stop 0)")  # fmt: skip
     p.add_argument("--c1", type=non_negative_float, default=2.0, help="PSO cognitive learning factor")
     p.add_argument("--c2", type=non_negative_float, default=2.0, help="PSO social learning factor")
     p.add_argument("--folds", type=positive_int, default=5, help="blocked time folds for cv with a single run")
@@ -175,6 +186,7 @@ def parser() -> ArgumentParser:
 
 def body(argv: Sequence[str] | None) -> int:
     args = parser().parse_args(argv)
+    args.method = args.method or ("pso-svr" if args.inputs or args.compare else "ladder")
     units = _units(args)
     for unit in units:  # before minutes of fitting, not after
         if unit.out:
@@ -182,13 +194,19 @@ def body(argv: Sequence[str] | None) -> int:
     if args.report:
         check_output_directory(args.report)
     auto = args.method == "auto"
+    ladder = args.method == "ladder"
+    if args.early_stop < 0:
+        raise UsageError(f"--early-stop {args.early_stop}: give a number of iterations, or 0 for never")
     try:
         estimator = EstimatorSettings(args.window_s, args.average_s, args.step_s)
         if args.inputs == "paper":
             inputs = default_inputs(estimator)
         else:
             inputs = parse_inputs(args.inputs or DEFAULT_INPUTS_TEXT, estimator.average_s, estimator.step_s)
-        sets = input_sets(args.auto_inputs, args.average_s, args.step_s) if auto else [inputs]
+        if ladder:
+            sets = [parse_inputs(text, args.average_s, args.step_s) for text in dict.fromkeys(r.inputs_text for r in RUNGS)]
+        else:
+            sets = input_sets(args.auto_inputs, args.average_s, args.step_s) if auto else [inputs]
         unit_runs = [[read_run(path) for path in unit.runs] for unit in units]
         for loaded in (each for runs in unit_runs for each in runs):
             estimator.samples(loaded.rate_hz)  # --window-s and --average-s, checked even when --inputs has no rate
@@ -200,12 +218,14 @@ def body(argv: Sequence[str] | None) -> int:
         raise UsageError(str(error)) from None
     if args.auto_inputs and not auto:
         raise UsageError("--auto-inputs goes with --method auto")
+    if ladder and (args.compare or args.inputs):
+        raise UsageError("the ladder chooses the model and its inputs; --compare and --inputs go with another --method")
     if auto and args.compare:
         raise UsageError("--compare fits every method on one input set; --method auto already compares them all")
     for loaded in (each for runs in unit_runs for each in runs):
         warmup_s = max(warmup_samples(specs, loaded.rate_hz) for specs in sets) / loaded.rate_hz
         check_calibration_run(loaded, warmup_s, args.block_s)
-    particles = args.particles or (AUTO_PARTICLES if auto else 60)
+    particles = args.particles or (AUTO_PARTICLES if auto else LADDER_PARTICLES if ladder else 60)
     iterations = args.iterations or (AUTO_ITERATIONS if auto else 100)
     config = TrainConfig(
         method=args.method,
@@ -214,7 +234,8 @@ def body(argv: Sequence[str] | None) -> int:
         block_s=args.block_s,
         reference=_reference(args.reference),
         fit=FitOptions(
-            degree=args.degree, poly_terms=args.poly_terms, particles=particles, iterations=iterations, c1=args.c1, c2=args.c2,
+            degree=args.degree, poly_terms=args.poly_terms, particles=particles, iterations=iterations, patience=args.early_stop,
+            c1=args.c1, c2=args.c2,
             fitness=args.fitness, trend=args.trend, coil_mix=args.coil_mix, rate_prior=args.rate_prior, folds=args.folds,
             n_jobs=args.jobs, seed=args.seed, progress=not args.quiet,
         ),  # fmt: skip
@@ -222,7 +243,8 @@ def body(argv: Sequence[str] | None) -> int:
         sensor_resolution_c=args.sensor_resolution_c,
         smoothed_fit=args.fit_temperature == "smoothed",
     )
-    settings = Settings(config, sets, auto=auto, compare=args.compare, log=not args.quiet)
+    settings = Settings(config, sets, auto=auto, compare=args.compare, log=not args.quiet, ladder=ladder,
+                        average_s=args.average_s, step_s=args.step_s)  # fmt: skip
     jobs = [channel_jobs(unit.name if args.manifest else "", runs, [read_run(path) for path in unit.holdout],
                          unit.channels, settings)
             for unit, runs in zip(units, unit_runs)]  # fmt: skip

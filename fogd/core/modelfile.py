@@ -89,6 +89,10 @@ TOP_KEYS = {
     "reference_dph", "training", "metrics", "created_utc", "fogd_version",
 }  # fmt: skip
 OPTIONAL_TOP_KEYS = {"domain_guard"}
+# metrics.held_out (optional, from fogd-train's ladder): the chosen model's held-out drift RMSE and its standard
+# error over the folds (in the channel's unit: deg/h, or g for an accelerometer), how the folds were cut, the rung
+HELD_OUT_KEYS = {"drift_rmse_dph", "spread_dph", "folds"}
+OPTIONAL_HELD_OUT_KEYS = {"rung"}
 GUARD_KEYS = {"points", "threshold", "fallback"}
 OPTIONAL_GUARD_KEYS = {"kind"}  # fogd.core.domain.GUARD_KINDS; without it, "joint"
 PARAM_KEYS = {
@@ -187,6 +191,21 @@ def load_channels(path: str | Path) -> ChannelModels:
         return from_channels_document(parsed, source=str(path))
     model = from_document(parsed, source=str(path))
     return ChannelModels({SINGLE_CHANNEL: model}, name=model.name, version=parsed["version"])
+
+
+def held_out(models: ChannelModels | FrozenModel) -> dict[str, dict[str, Any]]:
+    """Each channel's stored held-out estimate (metrics.held_out, validated when the file was loaded), for the
+    status file and fogd-top: {channel: {drift_rmse, spread, folds}}; channels trained without one are left
+    out (files from before the ladder, or a --method given by name)."""
+    if isinstance(models, FrozenModel):
+        models = ChannelModels({SINGLE_CHANNEL: models}, name=models.name, version=MODEL_VERSION)
+    figures = {}
+    for channel, model in models.items():
+        stored = (model.meta.get("metrics") or {}).get("held_out")
+        if isinstance(stored, dict):
+            figures[channel] = {"drift_rmse": stored["drift_rmse_dph"], "spread": stored["spread_dph"],
+                                "folds": stored["folds"]}  # fmt: skip
+    return figures
 
 
 def _is_multi_channel(doc: Any) -> bool:
@@ -388,6 +407,8 @@ def from_document(doc: Any, *, source: str = "model") -> FrozenModel:
     check.number(doc["reference_dph"], "reference_dph")
     for key in ("training", "metrics"):
         check.mapping(doc[key], key, None)
+    if "held_out" in doc["metrics"]:
+        check.held_out(doc["metrics"]["held_out"])
     created = check.string(doc["created_utc"], "created_utc")
     check.string(doc["fogd_version"], "fogd_version")
     meta = {
@@ -436,6 +457,16 @@ class _Checker:
             self.fail(where, f"lacks {', '.join(sorted(missing))}")
         if unknown:
             self.fail(where, f"has unknown key(s) {', '.join(sorted(map(repr, unknown)))}")
+
+    def held_out(self, value: Any) -> None:
+        where = "metrics.held_out"
+        self.mapping(value, where, HELD_OUT_KEYS, optional=OPTIONAL_HELD_OUT_KEYS)
+        for key in ("drift_rmse_dph", "spread_dph"):
+            if self.number(value[key], f"{where}.{key}") < 0:
+                self.fail(f"{where}.{key}", f"must not be negative, found {value[key]!r}")
+        for key in ("folds", "rung"):
+            if key in value:
+                self.string(value[key], f"{where}.{key}")
 
     def string(self, value: Any, where: str) -> str:
         if not isinstance(value, str) or len(value) > 256:

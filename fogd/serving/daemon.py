@@ -40,7 +40,7 @@ from fogd.core.compensator import TEMP_VALID_C, Compensated
 from fogd.core.estimator import SCALAR_CHUNK
 from fogd.core.flags import Flag, describe
 from fogd.core.frozen import FrozenModel
-from fogd.core.modelfile import check_rate, printable
+from fogd.core.modelfile import check_rate, held_out, printable
 from fogd.errors import ConfigError, FogdError
 from fogd.protocols.base import TIME_BACKWARDS, Frame
 from fogd.serving.channels import ChannelPlan, as_models, method, plan
@@ -734,7 +734,7 @@ class Daemon:
             "time_unix_s": time.time(),
             "uptime_s": now_s - self.started_s,
             "connected": bool(getattr(self.reader, "connected", True)),
-            "model": {"name": self.model.name, "method": method(self.models)},
+            "model": {"name": self.model.name, "method": method(self.models), "held_out": held_out(self.models)},
             "channels": {"compensated": list(self.plan.covered), "passed": list(self.plan.passed)},
             "missing_channels": self.channels_seen.missing,  # compensated, but no frame has carried them
             "rate": self.rate.as_dict(),

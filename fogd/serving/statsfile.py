@@ -98,6 +98,24 @@ def is_live(snapshot: dict[str, Any]) -> bool:
     return isinstance(written, (int, float)) and time.time() - written < STALE_AFTER_S
 
 
+def held_out_text(model: dict[str, Any]) -> str:
+    """The model's held-out drift as fogd-train estimated it (model file metrics.held_out), per channel."""
+    figures = model.get("held_out")
+    if not isinstance(figures, dict) or not figures:
+        return "held-out drift not in the model file (trained before fogd-train's ladder, or with --method)"
+
+    def one(channel: str, figure: Any) -> str:
+        if not isinstance(figure, dict) or not all(isinstance(figure.get(k), (int, float)) for k in ("drift_rmse", "spread")):
+            return f"{channel} ?"
+        return f"{figure['drift_rmse']:.3g} ± {figure['spread']:.2g} {channel_unit(channel)}"
+
+    if len(figures) == 1:
+        channel, figure = next(iter(figures.items()))
+        folds = figure.get("folds") if isinstance(figure, dict) else None
+        return f"held-out drift {one(channel, figure)}" + (f" ({folds})" if isinstance(folds, str) else "")
+    return "held-out drift " + ", ".join(f"{channel} {one(channel, figure)}" for channel, figure in figures.items())
+
+
 def describe(snapshot: dict[str, Any]) -> str:
     """A few lines for an operator."""
     live = is_live(snapshot)
@@ -128,6 +146,7 @@ def describe(snapshot: dict[str, Any]) -> str:
             f"model {model.get('name')} ({model.get('method')}); T {number(latest.get('temp_c'), '.2f')} C, "
             f"dT/dt {number(latest.get('temp_rate_cps'), '+.5f')} C/s, {comp}, "
             f"latency {number(1e3 * latency['last'] if isinstance(latency.get('last'), (int, float)) else None, '.1f')} ms",
+            held_out_text(model),
             str(snapshot.get("status", "")),
             *_thermal_lines(snapshot.get("thermal")),
         ]

@@ -49,6 +49,8 @@ class FitOptions:
     kernel_columns: tuple[int, ...] | None = None  # pso-svr over a trend: the inputs its kernel reads (None: every one)
     particles: int = 60
     iterations: int = 100
+    search: bool = True  # pso-svr: the swarm and its kernel; False: the trend alone (fogd.calibration.ladder's rungs)
+    patience: int = 0  # the swarm stops after this many iterations without its best improving (0: never; pso.py)
     c1: float = 2.0
     c2: float = 2.0
     fitness: str = "cv"  # "train": the paper's RMSE on the training rows; "cv": RMSE on held-out folds
@@ -132,8 +134,8 @@ def fit(method: str, X: np.ndarray, y: np.ndarray, groups: np.ndarray, options: 
                 fitness=options.fitness, trend=options.trend != "none",
                 trend_powers=trend_terms(xs, ys, groups, options, x_scale),
                 groups=groups, clamp=clamp, kernel_columns=options.kernel_columns if options.trend != "none" else None,
-                particles=options.particles, iterations=options.iterations,
-                c1=options.c1, c2=options.c2, seed=options.seed, n_jobs=options.n_jobs, progress=options.progress,
+                particles=options.particles, iterations=options.iterations, patience=options.patience,
+                search=options.search, c1=options.c1, c2=options.c2, seed=options.seed, n_jobs=options.n_jobs, progress=options.progress,
             )
         cv_rmse_dph = y_scale * held_out_rmse(result.estimator, xs, ys, splits, groups, clamp)
     unconverged = 0

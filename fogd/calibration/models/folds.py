@@ -51,6 +51,31 @@ def folds(groups: np.ndarray, n_folds: int) -> list[Split]:
     return [(rows[fold_of != fold], rows[fold_of == fold]) for fold in range(n_folds)]
 
 
+def time_folds(groups: np.ndarray, n_folds: int, gap_rows: int, min_runs: int = MIN_RUNS_LEFT_OUT) -> list[Split]:
+    """The ladder's outer folds (fogd.calibration.ladder): leave-one-run-out with `min_runs` runs or more; with
+    fewer, `n_folds` contiguous stretches of every run (the k-th of each held out together), each held out with
+    `gap_rows` rows on either side of it dropped from the training rows of its run, so that no training block
+    shares the held-out stretch's thermal history (a lag of tau s remembers about tau s; `gap_rows` covers the
+    longest)."""
+    groups = np.asarray(groups)
+    rows = np.arange(groups.size)
+    runs = np.unique(groups)
+    if runs.size >= min_runs:
+        return [(rows[groups != run], rows[groups == run]) for run in runs]
+    if n_folds < 2:
+        raise InputError(f"held-out folds need at least {min_runs} runs or --folds >= 2 (have {n_folds}): add a run or raise --folds")
+    fold_of = np.full(groups.size, -1)
+    near = np.zeros((n_folds, groups.size), dtype=bool)  # rows within gap_rows of fold k's stretch of their run
+    for run in runs:
+        in_run = rows[groups == run]
+        if in_run.size < n_folds:
+            raise InputError(f"{in_run.size} block rows in a run are too few for {n_folds} time folds: record a longer run")
+        for fold, stretch in enumerate(np.array_split(in_run, n_folds)):
+            fold_of[stretch] = fold
+            near[fold, in_run[(in_run >= stretch[0] - gap_rows) & (in_run <= stretch[-1] + gap_rows)]] = True
+    return [(rows[~near[fold]], rows[fold_of == fold]) for fold in range(n_folds)]
+
+
 def fit_in_runs(estimator, xs: np.ndarray, ys: np.ndarray, groups: np.ndarray | None):
     """`estimator.fit`, with the rows' runs for estimators that fit one offset per run."""
     if groups is not None and "groups" in inspect.signature(estimator.fit).parameters:

@@ -155,9 +155,11 @@ def fit_pso_svr(
     seed: int,
     n_jobs: int,
     progress: bool,
+    patience: int = 0,
+    search: bool = True,
 ) -> MethodFit:
     """Search C, epsilon, sigma with the swarm, then fit the SVR on every row with the best of them (its kernel
-    over the inputs `kernel_columns` only, when given)."""
+    over the inputs `kernel_columns` only, when given); `search=False`: the trend alone, with no kernel."""
     coil = trend_powers if isinstance(trend_powers, CoilTerms) else None
     trend_label = "none" if not trend else "linear" if trend_powers is None else "coil" if coil else "poly"
     rows = np.arange(len(ys))
@@ -165,6 +167,8 @@ def fit_pso_svr(
     lower = LOG10_LOWER.copy()
     if trend and trend_powers is not None:
         lower[2] = POLY_TREND_LOG10_SIGMA_MIN
+    if not search:  # the trend alone, asked for: no swarm, no support vectors
+        return _trend_alone(xs, ys, groups, trend_powers, kernel_columns, y_scale, trend_label, coil)
     result = pso_minimize(
         functools.partial(svr_fitness, xs=xs, ys=ys, splits=fitness_splits, y_scale=y_scale, trend=trend,
                           groups=groups, trend_powers=trend_powers, clamp=clamp, kernel_columns=kernel_columns),
@@ -178,6 +182,7 @@ def fit_pso_svr(
         n_jobs=n_jobs,
         progress=progress,
         label=f"PSO-SVR ({fitness})",
+        patience=patience,
     )
     if not np.isfinite(result.best_fitness):
         raise InputError("PSO-SVR: no C, epsilon, sigma in the search box gave a converged SVR; check the runs for flat or repeated blocks")
@@ -189,6 +194,26 @@ def fit_pso_svr(
         kernel = not trend_alone_dph <= result.best_fitness * (1.0 + KERNEL_MARGIN)
     model = TrendSvr(c, epsilon, sigma, trend, trend_powers=trend_powers, kernel=kernel,
                      kernel_columns=kernel_columns).fit(xs, ys, groups)  # fmt: skip
+    params, hyperparameters = _frozen(model, xs, trend_powers, kernel_columns, y_scale, trend_label, coil)
+    if trend_alone_dph is not None:
+        hyperparameters["trend_alone_dph"] = trend_alone_dph  # the trend without a kernel, same folds as the swarm's best
+        hyperparameters["kernel"] = "rbf" if kernel else f"none (the trend alone scored within {KERNEL_MARGIN:.0%} of it)"
+    return MethodFit(model, params, hyperparameters, result.history)
+
+
+def _trend_alone(xs: np.ndarray, ys: np.ndarray, groups: np.ndarray | None, trend_powers, kernel_columns,
+                 y_scale: float, trend_label: str, coil: CoilTerms | None) -> MethodFit:  # fmt: skip
+    """The trend with no kernel (the ladder's rungs below the SVR, fogd.calibration.ladder)."""
+    model = TrendSvr(trend=True, trend_powers=trend_powers, kernel=False, kernel_columns=kernel_columns).fit(xs, ys, groups)
+    params, hyperparameters = _frozen(model, xs, trend_powers, kernel_columns, y_scale, trend_label, coil)
+    hyperparameters["kernel"] = "none (the trend alone)"
+    return MethodFit(model, params, hyperparameters)
+
+
+def _frozen(model: TrendSvr, xs: np.ndarray, trend_powers, kernel_columns, y_scale: float, trend_label: str,
+            coil: CoilTerms | None) -> tuple[dict, dict]:  # fmt: skip
+    """The fitted model's params for the model file and its hyper-parameters."""
+    c, epsilon, sigma, trend, kernel = model.C, model.epsilon, model.sigma, model.trend, model.svr_ is not None
     trend_coef = model.trend_.coef_ if trend else np.zeros(xs.shape[1] if trend_powers is None else len(trend_powers))
     trend_mix = None
     if isinstance(trend_powers, CoilTerms):  # frozen as fitted: the mix, and monomials over the inputs and q
@@ -216,11 +241,8 @@ def fit_pso_svr(
         "trend": trend_label,
         "support_vectors": len(params["dual_coef"]),
     }
-    if trend_alone_dph is not None:
-        hyperparameters["trend_alone_dph"] = trend_alone_dph  # the trend without a kernel, same folds as the swarm's best
-        hyperparameters["kernel"] = "rbf" if kernel else f"none (the trend alone scored within {KERNEL_MARGIN:.0%} of it)"
     if coil is not None:
         hyperparameters["coil_mix"] = coil.mix.tolist()
         if coil.prior_strength is not None:
             hyperparameters["rate_prior_strength"] = coil.prior_strength  # relative (fogd.calibration.models.coil)
-    return MethodFit(model, params, hyperparameters, result.history)
+    return params, hyperparameters

@@ -1,0 +1,233 @@
+"""fogd-train's default ladder: the one-standard-error choice, its time-respecting folds, what it picks on runs
+whose truth is known, the swarm's early stop, and the held-out estimate in the model file, `fogd --status` and
+fogd-top."""
+
+from __future__ import annotations
+
+import copy
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from fogd.calibration.ladder import RUNGS, Rung, Scored, choose, climb
+from fogd.calibration.models import FitOptions, pso_minimize
+from fogd.calibration.models.folds import time_folds
+from fogd.calibration.training import TrainConfig
+from fogd.cli import top
+from fogd.core import modelfile
+from fogd.core.inputs import inputs_batch, parse_inputs
+from fogd.core.lag import LagFilter
+from fogd.core.runio import Run
+from fogd.errors import ModelFileError
+from fogd.serving import statsfile
+
+H = 3600.0
+RATE_HZ = 1.0
+# three runs whose rates stay within each other's range (24 C/h): left out, no run's inputs are clamped
+HEAT = [(0, -10), (0.5 * H, -10), (3 * H, 50), (4 * H, 50)]
+COOL = [(0, 50), (0.5 * H, 50), (3 * H, -10), (4 * H, -10)]
+CYCLE = [(0, 0), (0.5 * H, 0), (2.5 * H, 48), (3 * H, 48), (5 * H, 0), (5.5 * H, 0)]
+NOISE_DPH = 0.3  # white, per 1 Hz sample: 0.03 deg/h in a 100 s block
+
+
+def make_run(knots, error, seed: int) -> Run:
+    """A 1 Hz run of the temperature programme `knots`, its rate `error(temp_c)` plus noise and a turn-on bias."""
+    times, temps = zip(*knots)
+    t_s = np.arange(0.0, times[-1], 1.0 / RATE_HZ)
+    temp_c = np.interp(t_s, times, temps)
+    rng = np.random.default_rng(seed)
+    rate_dph = error(temp_c) + NOISE_DPH * rng.standard_normal(t_s.size) + rng.normal(0.0, 0.5)
+    return Run(f"<run {seed}>", t_s, rate_dph, temp_c, RATE_HZ, "")
+
+
+def ieee952(temp_c: np.ndarray) -> np.ndarray:
+    """Linear in the ladder's first rung's own inputs (the temperature and its eq. 16 rate): linear is the truth."""
+    x = inputs_batch(temp_c, parse_inputs("temp,rate@50"), RATE_HZ)
+    return 0.05 * (x[:, 0] - 20.0) + 2000.0 * x[:, 1]
+
+
+def coil_gradient(temp_c: np.ndarray) -> np.ndarray:
+    """The gap between the sensor and a coil lagging it by 1500 s: it outlives every ramp by an hour."""
+    return 0.3 * (temp_c - LagFilter(1500.0, RATE_HZ).update(temp_c))
+
+
+def ladder(error):
+    runs = [make_run(knots, error, seed) for seed, knots in enumerate((HEAT, COOL, CYCLE), start=1)]
+    return climb(runs, TrainConfig(fit=FitOptions(particles=4, iterations=3, progress=False)))
+
+
+def test_linear_truth_plus_noise_is_fitted_linear():
+    result = ladder(ieee952)
+    assert result.chosen.rung.name == "linear", result.line()
+    assert result.folds == "leave-one-run-out, 3 runs"
+    assert result.trained.model.method == "linear"
+    assert [s.rung.name for s in result.scored] == [r.name for r in RUNGS]
+    assert result.chosen.drift_rmse_dph < 2 * NOISE_DPH / 10  # near the block noise, not a thermal residue
+
+
+def test_a_lag_effect_climbs_to_the_lag_bank():
+    result = ladder(coil_gradient)
+    assert result.chosen.rung.inputs_text != "temp,rate@50", result.line()
+    linear = result.scored[0]
+    assert result.chosen.drift_rmse_dph + result.chosen.spread_dph < linear.drift_rmse_dph
+    line = result.line()
+    assert line.startswith(f"ladder: chose {result.chosen.rung.name} ") and "\n" not in line
+    for scored in result.scored:  # every rung's held-out figure, in the one line
+        assert f"{scored.rung.name} {scored.drift_rmse_dph:.3g} ± " in line
+
+
+def scored(name: str, drift: float, spread: float) -> Scored:
+    return Scored(Rung(name, "linear", "temp"), (), drift, spread, [], 0.0)
+
+
+def test_the_simpler_rung_wins_unless_the_richer_is_better_by_more_than_its_spread():
+    assert choose([scored("a", 1.0, 0.1), scored("b", 0.95, 0.1)]).rung.name == "a"  # within the spread
+    assert choose([scored("a", 1.0, 0.1), scored("b", 0.85, 0.1)]).rung.name == "b"  # beyond it
+    assert choose([scored("a", 1.0, 0.0), scored("b", 0.5, 0.6), scored("c", 0.4, 0.05)]).rung.name == "c"
+
+
+@given(st.lists(st.tuples(st.floats(0.0, 10.0), st.floats(0.0, 2.0)), min_size=1, max_size=6))
+def test_choose_is_the_first_rung_within_one_standard_error_of_the_best(figures):
+    rungs = [scored(str(i), drift, spread) for i, (drift, spread) in enumerate(figures)]
+    chosen = choose(rungs)
+    best = min(rungs, key=lambda s: s.drift_rmse_dph)
+    assert chosen.drift_rmse_dph <= best.drift_rmse_dph + best.spread_dph
+    assert all(s.drift_rmse_dph > best.drift_rmse_dph + best.spread_dph for s in rungs[: rungs.index(chosen)])
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.integers(5, 60), min_size=1, max_size=4), st.integers(2, 5), st.integers(0, 8))
+def test_time_folds_test_every_row_once_and_train_a_gap_away(sizes, n_folds, gap):
+    groups = np.repeat(np.arange(len(sizes)), sizes)
+    splits = time_folds(groups, n_folds, gap)
+    tested = np.concatenate([test for _, test in splits])
+    assert sorted(tested) == list(range(groups.size))
+    for train, test in splits:
+        assert np.intersect1d(train, test).size == 0
+        if len(sizes) >= 3:  # leave-one-run-out: one run held out, every other run trained on
+            assert np.unique(groups[test]).size == 1 and set(groups[train]) == set(groups) - set(groups[test])
+            continue
+        for run in np.unique(groups[test]):
+            held, trained = test[groups[test] == run], train[groups[train] == run]
+            assert np.all((trained < held.min() - gap) | (trained > held.max() + gap))
+
+
+def flat(x: np.ndarray) -> float:
+    return 1.0
+
+
+def test_the_swarm_stops_when_its_best_stops_moving():
+    stopped = pso_minimize(flat, [0.0], [1.0], particles=3, iterations=50, patience=5, progress=False)
+    assert len(stopped.history) == 6 and stopped.evaluations == 18  # the first, then five without a move
+    full = pso_minimize(flat, [0.0], [1.0], particles=3, iterations=50, patience=0, progress=False)
+    assert len(full.history) == 50
+
+
+# --- the held-out estimate in the model file, fogd --status and fogd-top ---------------------------------------
+
+DEMO = Path(__file__).resolve().parents[1] / "fogd" / "data" / "demo-model.json"
+HELD_OUT = {"drift_rmse_dph": 0.0042, "spread_dph": 0.0007, "folds": "leave-one-run-out, 3 runs", "rung": "lag bank"}
+
+
+def with_held_out(tmp_path: Path, held_out) -> Path:
+    doc = json.loads(DEMO.read_text())
+    doc["metrics"]["held_out"] = copy.deepcopy(held_out)
+    path = tmp_path / "model.json"
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def test_the_held_out_estimate_round_trips_through_the_model_file(tmp_path):
+    path = tmp_path / "saved.json"
+    doc = json.loads(DEMO.read_text())
+    doc["metrics"]["held_out"] = dict(HELD_OUT)
+    modelfile.save(path, doc)
+    figures = modelfile.held_out(modelfile.load_channels(path))
+    assert figures == {"rate_dph": {"drift_rmse": 0.0042, "spread": 0.0007, "folds": "leave-one-run-out, 3 runs"}}
+
+
+def test_a_model_file_from_before_the_ladder_loads_without_one():
+    assert "held_out" not in json.loads(DEMO.read_text())["metrics"]  # written before it existed
+    assert modelfile.held_out(modelfile.load_channels(DEMO)) == {}
+
+
+@pytest.mark.parametrize("bad, words", [
+    ({"drift_rmse_dph": 0.1, "spread_dph": 0.01}, "lacks folds"),
+    ({**HELD_OUT, "drift_rmse_dph": -0.1}, "must not be negative"),
+    ({**HELD_OUT, "spread_dph": "small"}, "finite number"),
+    ({**HELD_OUT, "extra": 1}, "unknown key"),
+    ([0.1, 0.01], "must be an object"),
+])  # fmt: skip
+def test_a_bad_held_out_estimate_is_refused_in_one_line(tmp_path, bad, words):
+    with pytest.raises(ModelFileError) as caught:
+        modelfile.load(with_held_out(tmp_path, bad))
+    assert "metrics.held_out" in str(caught.value) and words in str(caught.value) and "\n" not in str(caught.value)
+
+
+def snapshot(held_out: dict) -> dict:
+    return {"model": {"name": "unit 7", "method": "pso-svr", "held_out": held_out}, "time_unix_s": 0.0}
+
+
+def test_status_and_top_show_the_held_out_estimate():
+    figures = {"rate_dph": {"drift_rmse": 0.0042, "spread": 0.0007, "folds": "leave-one-run-out, 3 runs"}}
+    expected = "held-out drift 0.0042 ± 0.0007 deg/h (leave-one-run-out, 3 runs)"
+    assert expected in statsfile.describe(snapshot(figures)).splitlines()
+    assert any(expected in line for line in top.render(snapshot(figures), "stats.json"))
+    imu = {"rate_x_dph": {"drift_rmse": 0.002, "spread": 0.001, "folds": "f"},
+           "accel_z_g": {"drift_rmse": 3e-5, "spread": 1e-5, "folds": "f"}}  # fmt: skip
+    assert "rate_x_dph 0.002 ± 0.001 deg/h, accel_z_g 3e-05 ± 1e-05 g" in statsfile.describe(snapshot(imu))
+    assert "not in the model file" in statsfile.describe(snapshot({}))
+
+
+def test_fogd_train_by_default_says_what_it_chose_in_one_line_and_keeps_the_estimate(tmp_path, capsys):
+    from fogd.cli import train as train_cli
+
+    paths = []
+    for seed, knots in enumerate((HEAT, COOL, CYCLE), start=1):
+        run = make_run(knots, coil_gradient, seed)
+        paths.append(tmp_path / f"run{seed}.csv")
+        np.savetxt(paths[-1], np.column_stack((run.t_s, run.rate_dph, run.temp_c)), delimiter=",",
+                   header="t_s,rate_dph,temp_c", comments="", fmt="%.9g")  # fmt: skip
+    model = tmp_path / "model.json"
+    report = tmp_path / "report"
+    assert train_cli.main([*map(str, paths), "-o", str(model), "--particles", "4", "--iterations", "3", "-q",
+                           "--report", str(report)]) == 0  # fmt: skip
+    assert "Model ladder (leave-one-run-out, 3 runs" in (report / "report.md").read_text()
+    out = capsys.readouterr().out
+    chosen = [line for line in out.splitlines() if line.startswith("ladder: chose")]
+    assert len(chosen) == 1 and all(f"{rung.name} " in chosen[0] for rung in RUNGS)
+    stored = json.loads(model.read_text())["metrics"]["held_out"]
+    assert stored["folds"] == "leave-one-run-out, 3 runs" and stored["rung"] in chosen[0]
+    assert f"{stored['drift_rmse_dph']:.3g} ± {stored['spread_dph']:.2g}" in chosen[0]
+    assert modelfile.held_out(modelfile.load_channels(model))["rate_dph"]["drift_rmse"] == stored["drift_rmse_dph"]
+
+
+@pytest.mark.parametrize("sizes, n_folds", [((30, 40, 25), 5), ((60,), 4), ((30, 45), 3)])
+def test_no_compensation_is_scored_on_the_same_folds(sizes, n_folds):
+    """A turn-on bias alone is nothing to compensate; a drift within each run is what is left uncompensated."""
+    from fogd.calibration.ladder import uncompensated
+
+    groups = np.repeat(np.arange(len(sizes)), sizes)
+    splits = time_folds(groups, n_folds, 2)
+    bias = np.array([0.3, -1.0, 2.0])[groups]
+    assert uncompensated(bias, groups, splits) == pytest.approx(0.0, abs=1e-12)
+    ramp = bias + np.concatenate([np.linspace(-1.0, 1.0, size) for size in sizes])
+    nothing = uncompensated(ramp, groups, splits)
+    own = np.sqrt(np.mean(np.concatenate([np.linspace(-1.0, 1.0, size) ** 2 for size in sizes])))
+    assert nothing == pytest.approx(own) if len(sizes) >= 3 else nothing > own  # a level from other stretches
+
+
+def test_short_runs_get_as_much_of_a_gap_as_leaves_a_third_of_them_to_train_on():
+    from fogd.calibration.ladder import affordable_gap
+
+    groups = np.repeat([0, 1], [80, 95])  # two 2 h runs of 100 s blocks
+    gap = affordable_gap(groups, 5)
+    assert gap == 18
+    for train, test in time_folds(groups, 5, gap):
+        for run, size in ((0, 80), (1, 95)):
+            assert np.sum(groups[train] == run) >= 80 / 3
+    assert affordable_gap(np.zeros(864, dtype=int), 5) >= 30  # a day at 1 Hz keeps the lag bank's whole 3000 s
