@@ -34,6 +34,7 @@ a header with the command, the date, the commit, the machine and what the run sh
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import hashlib
 import sys
 import time
@@ -42,6 +43,8 @@ from dataclasses import fields
 import numpy as np
 
 from fogd.calibration.channels import Settings, channel_jobs, fit_channels
+from fogd.calibration.ladder import climb
+from fogd.cli.train import LADDER_PARTICLES
 from fogd.calibration.models import FitOptions
 from fogd.calibration.models.coil import MIXES, PRIORS, SIGNED_MIX_GAIN
 from fogd.calibration.replay import replay, replay_channels, replay_table
@@ -71,8 +74,9 @@ SENSORS = {"fine (0.0625 C, 4 Hz)": (0.0625, 4.0), "whole degrees (1 C, 1 Hz, a 
 BARS = {"fine": 1.3, "whole": 2.0}  # the dynamic-model issue's bar on held-out drift / noise floor, by sensor
 THERMALS = ("lumped", "diffusive")
 LINEAR = "linear (IEEE 952: temp, rate@50)"
-DEFAULT = f"**fogd default: pso-svr, coil trend, {DEFAULT_INPUTS_TEXT}**"
+DEFAULT = f"pso-svr, coil trend, {DEFAULT_INPUTS_TEXT} (the ladder's top rung)"
 AUTO = "fogd-train --method auto"
+LADDER = "**fogd-train's default: the ladder**"
 SCHEMES = (  # (label, method, inputs, fitness, trend, domain guard)
     (LINEAR, "linear", None, "cv", "linear", False),
     ("paper's recipe: pso-svr --fitness train --trend none (temp, rate@50)", "pso-svr", None, "train", "none", False),
@@ -80,11 +84,12 @@ SCHEMES = (  # (label, method, inputs, fitness, trend, domain guard)
     (DEFAULT, "pso-svr", DEFAULT_INPUTS_TEXT, "cv", "coil", False),
     ("default with the domain guard", "pso-svr", DEFAULT_INPUTS_TEXT, "cv", "coil", True),
     (AUTO, "auto", None, "cv", "coil", False),
+    (LADDER, "ladder", None, "cv", "coil", False),
 )
 
 
 SCHEME_KEYS = {SCHEMES[0][0]: "linear", SCHEMES[1][0]: "paper", SCHEMES[2][0]: "previous", DEFAULT: "default",
-               SCHEMES[4][0]: "guard", AUTO: "auto"}
+               SCHEMES[4][0]: "guard", AUTO: "auto", LADDER: "ladder"}
 
 
 def as_profile(spec: str | Profile) -> Profile:
@@ -150,6 +155,10 @@ def evaluate(args, thermal: str, resolution_c: float, sensor_hz: float) -> dict[
         if method == "auto":
             winner, _ = select(calibration, config, input_sets(None, 0.5, 0.0))
             trained, note = winner.trained, f"chose {winner.label}"
+        elif method == "ladder":
+            ladder = climb(calibration, dataclasses.replace(config, fit=dataclasses.replace(  # as fogd-train's default
+                options, particles=LADDER_PARTICLES, iterations=size[1], patience=10)))  # fmt: skip
+            trained, note = ladder.trained, f"chose {ladder.chosen.rung.name}"
         else:
             trained = train(calibration, config)
             coil = trained.fitted.hyperparameters.get("coil_temperature")
@@ -160,8 +169,8 @@ def evaluate(args, thermal: str, resolution_c: float, sensor_hz: float) -> dict[
         rows[label] = [(t.after.rmse_dph / t.best.rmse_dph, t.fallback_share) for t in tables]
         rows.setdefault("Before compensation", [(t.before.rmse_dph / t.best.rmse_dph, 0.0) for t in tables])
         rows.setdefault("_floor", [t.best.rmse_dph for t in tables])
-        if method == "auto":
-            rows["_auto_choice"] = [note]
+        if method in ("auto", "ladder"):
+            rows[f"_{method}_choice"] = [note]
     return rows
 
 
@@ -224,7 +233,7 @@ def print_channel_tables(title: str, rows: dict[str, dict[str, list]], bar: floa
             fallback = max(share for _, share in channel_rows[label])
             print(f"| {label} | " + " | ".join(f"{r:.2f}" for r in ratios) + f" | {max(ratios):.2f} | {fallback * 100:.1f} % |")
         print(f"| Noise floor, {unit} | " + " | ".join(f"{f:.1e}" for f in channel_rows["_floor"]) + " | | |")
-    print(f"\n{title}: fogd default per channel\n")
+    print(f"\n{title}: pso-svr over the lag bank (the ladder's top rung) per channel\n")
     print("| Channel | " + " | ".join(HELD_OUT) + f" | worst | within {bar:g}x | before compensation | noise floor |")
     print("|---|" + "---:|" * (len(HELD_OUT) + 1) + ":---:|" + "---:|" * 2)
     for channel, channel_rows in rows.items():
@@ -262,9 +271,13 @@ def print_table(title: str, rows: dict[str, list], default_inputs: str | None = 
         print("| lower bound for any compensator (tools/quantisation_bound.py) | " + " | ".join(f"{b:.2f}" for b in bound)
               + f" | {max(bound):.2f} | |")
         default = [ratio for ratio, _ in rows[DEFAULT]]
-        print("| fogd default / lower bound | " + " | ".join(f"{d / b:.2f}" for d, b in zip(default, bound))
+        print("| lag bank + pso-svr / lower bound | " + " | ".join(f"{d / b:.2f}" for d, b in zip(default, bound))
               + f" | {max(d / b for d, b in zip(default, bound)):.2f} | |")
     print("| Noise floor, deg/h | " + " | ".join(f"{f:.1e}" for f in rows["_floor"]) + " | | |")
+    if LADDER in rows and LINEAR in rows:
+        ladder = np.array([r for r, _ in rows[LADDER]]) / np.array([r for r, _ in rows[LINEAR]])
+        print(f"\n{LADDER} {rows['_ladder_choice'][0]}; ladder / linear per run: "
+              + ", ".join(f"{g:.3f}" for g in ladder) + f" (worst {ladder.max():.3f})")
     if AUTO not in rows or LINEAR not in rows:
         return
     auto = np.array([r for r, _ in rows[AUTO]]) / np.array([r for r, _ in rows[LINEAR]])
@@ -281,8 +294,10 @@ and a diffusive fibre coil and two temperature sensors: a fine one (0.0625 C at 
 other seeds: paper-test (0 to 30 C), cool-40-to-0, fast-ramp (80 C/h, four times faster than any calibration
 ramp), soak-after-ramp and fast-cycle. Each cell is the std of 100 s block means after the first 600 s divided
 by the same for the run minus its true thermal error (the noise floor): **1.00 is perfect**. `fallback` is the
-largest share of samples the domain guard sent to its linear fallback. Why the default is what it is, and what
-limits it: [how it works](../how-it-works.md).
+largest share of samples the domain guard sent to its linear fallback. `fogd-train`'s default is the ladder (in
+bold): it scores IEEE 952 linear, a static curve, the coil trend over the lag bank and that trend under PSO-SVR on
+the calibration runs alone (leave-one-run-out) and takes the simplest within one standard error of the best; the
+line under each table says which it chose. What limits it: [how it works](../how-it-works.md).
 """
 
 
