@@ -1,8 +1,8 @@
 """Regenerate the model bundled for `fogd --demo` (fogd/data/demo-model.json).
 
 Simulates the calibration runs of tools/accuracy_table.py (heating, cooling, a cycle) with a navigation-grade
-gyro, the one `fogd --demo` emulates, at the demo's sample rate, and trains fogd's default method on them with
-the paper's PSO settings, exactly as `fogd-train` does:
+gyro, the one `fogd --demo` emulates, at the demo's sample rate, and trains pso-svr on fogd's default inputs (the
+lag bank, the ladder's top rung) with the paper's PSO settings, as `fogd-train --method pso-svr` does:
 
     python tools/make_demo_model.py          # a few minutes on 2 cores
 """

@@ -71,10 +71,10 @@ def write_report(
     lines = _training_summary(trained, chosen, block_s, unit)
     if selection:
         lines += [
-            "## Model selection (`--method auto`)",
+            "## Model selection",
             "",
-            "Held-out RMSE of every candidate on the same blocks (leave-one-run-out, or blocked time folds for "
-            "one run); `vs linear` is relative to the linear model on the first input set.",
+            "Held-out drift of every candidate (`--method auto`'s families, or the default ladder's rungs), each "
+            "scored on blocks it was not fitted on, all on the same blocks; the table says which folds.",
             "",
             *selection,
             "",
