@@ -93,7 +93,7 @@ def best_time(function: Callable[[], object], repeats: int = 3) -> float:
 
 
 def print_table(title: str, header: list[str], rows: list[list[object]]) -> None:
-    """A plain aligned table (markdown pipes, so it pastes into the README)."""
+    """A plain aligned table (markdown pipes, so it pastes into a docs page)."""
     cells = [header] + [[str(cell) for cell in row] for row in rows]
     widths = [max(len(row[i]) for row in cells) for i in range(len(header))]
     print(f"\n{title}")

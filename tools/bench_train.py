@@ -2,7 +2,7 @@
 paper's swarm in the same run, and what each model leaves on a run kept out of training.
 
 Datasets (made by fogd-sim, in a temporary directory):
-- quick-start: the README's five commands (paper-train seed 1 and cooling seed 2 for training, paper-test seed 3
+- quick-start: the earlier quick start (paper-train seed 1 and cooling seed 2 for training, paper-test seed 3
   held out), at 200 Hz with the default (tactical) noise;
 - quick-start, navigation noise at 10 Hz (`--noise navigation --rate-hz 10`);
 - a day: 24 h at 1 Hz of fridge / room cycles between 5 and 24 C (issue 33's real IMU recording had those),

@@ -68,7 +68,7 @@ DEFAULT_FAMILY = "pso-svr"
 # is the first term of one), yet with a whole-degree sensor the three-run nested score ranked it first, and
 # on held-out histories it left 1.2-1.5x IEEE 952's drift where the default leaves 0.2-0.8x; auto leaves it
 # out on input sets with lagged temperatures (ls-poly's order 1 is the same model, tuned with the others).
-# fogd's lag bank only: the paper's temp,rate@50 cannot describe the coil's thermal state (README, accuracy
+# fogd's lag bank only: the paper's temp,rate@50 cannot describe the coil's thermal state (docs/results/accuracy.md, accuracy
 # table: 10-30x the noise floor on held-out histories where the bank's models reach 1-2x), yet with three
 # calibration runs leave-one-run-out scores them better (a model of the bank fitted on a heating and a
 # cooling run has never seen a reversal): the score would choose the inputs that generalise worse.

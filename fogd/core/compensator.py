@@ -9,7 +9,7 @@ floats, because numpy's per-call overhead would cost ten times the work; their t
 are the same bit for bit, and so is their compensation for the linear model (within 1e-12 relative for the
 kernel models, whose `predict_one` sums in another order).
 
-Policies (documented in the README):
+Policies (documented in docs/reference/flags-and-counters.md):
 - Warm-up: until the estimator window is full the temperature rate is taken as 0 C/s; the model is still
   evaluated at the current temperature and the sample is flagged WARMUP.
 - Invalid temperature (NaN, Inf, outside `TEMP_VALID_C`): the last valid temperature is held and the sample

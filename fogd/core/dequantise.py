@@ -11,7 +11,7 @@ step, but each step is exact: when the reading changes from r to r', the sensor'
   crossings ever further apart; the linear pace runs on past the turn, the parabola slows into it. On
   tools/accuracy_table.py's simulated whole-degree runs it halves the estimate's RMS error on the soak after
   a ramp, takes two fifths off it on the fast cycle and lowers the held-out drift of every run (seeds 1 and
-  2, both coils; tools/dequantise_error.py, README). Old files keep "linear": they were trained with it.
+  2, both coils; tools/dequantise_error.py, docs/how-it-works.md). Old files keep "linear": they were trained with it.
 When the next crossing is overdue (the pace would have reached the next level), the temperature has slowed
 down: the rate can be at most a step per elapsed time, and the estimate relaxes back towards the middle of
 the band. A reading that steps back across the level just crossed (noise at a threshold, or a reversal) is

@@ -248,7 +248,7 @@ def kernel_columns(specs: tuple[InputSpec, ...]) -> tuple[int, ...] | None:
     Over a lag bank a kernel of every input is fitted to the calibration runs' few trajectories through nine
     dimensions, and a faster history reaches it off them: on tools/accuracy_table.py's held-out runs (--quick,
     seeds 1-5, both coils, fine sensor) it left the worst run at 1.21-2.55x the noise floor, a kernel of the
-    temperature alone 1.11-1.66x (README, "Methods"); the swarm's leave-one-run-out score could not tell
+    temperature alone 1.11-1.66x (docs/how-it-works.md); the swarm's leave-one-run-out score could not tell
     them apart. Over the temperature the kernel still follows a static curve that the trend's cubic cannot."""
     if not dynamic_inputs(specs):
         return None

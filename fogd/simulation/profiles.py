@@ -122,7 +122,7 @@ _BUILTIN: dict[str, tuple[str, tuple[tuple[float, float], ...]]] = {
         "10 C up to 40 C and back in 30 min each (60 C/h), then a soak",
         ((0.5 * HOUR_S, 10.0), (0.5 * HOUR_S, 40.0), (0.5 * HOUR_S, 10.0), (1.0 * HOUR_S, 10.0)),
     ),
-    # Two more calibration runs of the README's programme for a KVH owner (its "soaks" and "fastest ramp" rows),
+    # Two more calibration runs of the KVH owner's chamber programme (docs/guides/kvh-chamber.md) (its "soaks" and "fastest ramp" rows),
     # over another range than the held-out runs above
     "cal-soaks": (
         "0 C, then 20 C/h steps to 10, 20 and 35 C with a 90 min soak at each (calibration: the slow lags settle)",
