@@ -32,23 +32,16 @@ def folds(groups: np.ndarray, n_folds: int) -> list[Split]:
     """(train_idx, test_idx) pairs: leave-one-run-out with >= MIN_RUNS_LEFT_OUT distinct groups, else `n_folds`
     contiguous stretches of time cut from every run alike (fold k holds out the k-th stretch of each run)."""
     groups = np.asarray(groups)
-    rows = np.arange(groups.size)
     runs = np.unique(groups)
-    if runs.size >= MIN_RUNS_LEFT_OUT:
-        return [(rows[groups != run], rows[groups == run]) for run in runs]
-    if n_folds < 2:
-        raise InputError(f"held-out folds need at least {MIN_RUNS_LEFT_OUT} runs or --folds >= 2 (have {n_folds}): add a run or raise --folds")
-    fold_of = np.empty(groups.size, dtype=np.int64)
-    for run in runs:
-        in_run = rows[groups == run]
-        if in_run.size < 2 * n_folds:
-            raise InputError(
-                f"{in_run.size} block rows in a run are too few for {n_folds} time folds: record more or longer runs, "
-                "use a smaller --block-s or fewer --folds"
-            )
-        for fold, stretch in enumerate(np.array_split(in_run, n_folds)):
-            fold_of[stretch] = fold
-    return [(rows[fold_of != fold], rows[fold_of == fold]) for fold in range(n_folds)]
+    if runs.size < MIN_RUNS_LEFT_OUT and n_folds >= 2:
+        for run in runs:
+            rows_in_run = int(np.count_nonzero(groups == run))
+            if rows_in_run < 2 * n_folds:
+                raise InputError(
+                    f"{rows_in_run} block rows in a run are too few for {n_folds} time folds: record more or longer "
+                    "runs, use a smaller --block-s or fewer --folds"
+                )
+    return time_folds(groups, n_folds, gap_rows=0)
 
 
 def time_folds(groups: np.ndarray, n_folds: int, gap_rows: int, min_runs: int = MIN_RUNS_LEFT_OUT) -> list[Split]:
