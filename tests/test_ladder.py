@@ -120,6 +120,7 @@ def test_choose_is_the_first_rung_within_one_standard_error_of_the_best(figures)
     best = min(rungs, key=lambda s: s.drift_rmse_dph)
     assert chosen.drift_rmse_dph <= best.drift_rmse_dph + best.spread_dph
     assert all(s.drift_rmse_dph > best.drift_rmse_dph + best.spread_dph for s in rungs[: rungs.index(chosen)])
+    assert chosen is rungs[0] or chosen.drift_rmse_dph < rungs[0].drift_rmse_dph  # never worse than the first (linear)
 
 
 @settings(max_examples=60, deadline=None)
