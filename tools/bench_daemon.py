@@ -155,7 +155,8 @@ class Step:
 class Harness:
     """One process under test between two ptys, driven by one select() loop."""
 
-    def __init__(self, label: str, command_for) -> None:
+    def __init__(self, label: str, command_for, cpus: set[int] | None = None) -> None:
+        """`cpus`: the CPUs the process may run on (set before it starts); default the harness's own."""
         self.label = label
         self.gyro, self.out = Pty(), Pty()
         self.cycle = frame_cycle()
@@ -163,8 +164,9 @@ class Harness:
         self.expect_seq: int | None = None  # sequence of the next frame expected back
         self.buffer = bytearray()
         self._read_times: list[tuple[int, float]] = []  # (index of the frame among those read, time of the read)
+        pin = None if cpus is None else (lambda: os.sched_setaffinity(0, cpus))
         self.process = subprocess.Popen(command_for(self.gyro.path, self.out.path), stdout=subprocess.DEVNULL,
-                                        stderr=subprocess.PIPE)  # fmt: skip
+                                        stderr=subprocess.PIPE, preexec_fn=pin)  # fmt: skip
 
     def cpu_s(self) -> tuple[float, float]:
         """CPU seconds of (the main thread, every other thread) so far: the scheduler's own nanosecond count
