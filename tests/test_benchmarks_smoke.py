@@ -100,3 +100,33 @@ def test_accuracy_table_refuses_bad_options_in_one_line(option, value):
     assert "Traceback" not in done.stderr
     error = done.stderr.strip().splitlines()[-1]
     assert "error:" in error and value.split(",")[-1] in error
+
+
+def _table(stdout: str, title: str) -> list[dict[str, str]]:
+    """The rows of the markdown table printed under the line starting with `title`, as header: cell."""
+    lines = stdout.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith(title)) + 1
+    end = next((i for i in range(start, len(lines)) if not lines[i].startswith("|")), len(lines))
+    header, _rule, *body = ([cell.strip() for cell in line.strip("|").split("|")] for line in lines[start:end])
+    return [dict(zip(header, row)) for row in body]
+
+
+def test_the_dedicated_box_mode_measures_each_process_alone_without_loss():
+    """bench_daemon.py --dedicated (issue 37): fogd and the relay each alone, paced frames at a low rate; every
+    figure of the summary is there, a number, and nothing was lost. No timing is asserted."""
+    done = subprocess.run([sys.executable, "-W", "ignore", str(TOOLS / "bench_daemon.py"), "--dedicated", "--quick",
+                           "--rates", "200"], capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert "condition: dedicated" in done.stdout and "Traceback" not in done.stderr
+    rows = {row["process"]: row for row in _table(done.stdout, "3k. Dedicated box")}
+    assert set(rows) == {"fogd", "relay"}
+    for row in rows.values():
+        assert row["frames/s"] == "200"
+        lost, written = (int(part) for part in row["lost"].split("/"))
+        assert lost == 0 and written == 140  # 0.2 s of lead-in and 0.5 s measured at 200/s
+        assert float(row["CPU"].rstrip("%")) > 0.0
+        for name in ("us/frame", "wakes/frame", "p50 us", "p99 us"):
+            assert float(row[name]) > 0.0, name
+    ratios = _table(done.stdout, "3l. Dedicated box")
+    assert [row["process"] for row in ratios] == ["fogd"] and ratios[0]["CPU"].endswith("x")
+    assert any(line.startswith("**On a dedicated box**") for line in done.stdout.splitlines())
