@@ -130,3 +130,17 @@ def test_the_dedicated_box_mode_measures_each_process_alone_without_loss():
     ratios = _table(done.stdout, "3l. Dedicated box")
     assert [row["process"] for row in ratios] == ["fogd"] and ratios[0]["CPU"].endswith("x")
     assert any(line.startswith("**On a dedicated box**") for line in done.stdout.splitlines())
+
+
+def test_the_results_page_opens_with_what_a_dedicated_box_should_see():
+    """bench.py --markdown: the dedicated benchmark's EXPECT line is repeated under the page's intro, above every
+    section, and stays in its own section too."""
+    sys.path.insert(0, str(TOOLS))
+    import bench
+
+    expect = f"{bench.EXPECT} expect fogd to take about 12.0 % at 1,000 frames/s\n"
+    kept = ["\n## daemon: `python tools/bench_daemon.py`\n\n", "| a |\n", "\n## dedicated: `...`\n\n", "| b |\n",
+            expect, "\ndedicated: ok in 1 s\n"]  # fmt: skip
+    page = bench.page_body(kept)
+    assert page.startswith(bench.PAGE_INTRO)
+    assert page.index(expect) < page.index("## daemon") and page.count(expect) == 2

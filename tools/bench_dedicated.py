@@ -294,7 +294,8 @@ def summarise(windows: list[Window], labels: list[str], rates: list[float], thei
                 "wakes": statistics.median(w.per_frame(w.wakes) for w in mine),
                 "involuntary": statistics.median(w.per_frame(sum(i for _, _, i in w.threads.values())) for w in mine),
                 "halts": statistics.median(halts) if halts else float("nan"),
-                **loss, "used": f"{len(mine)}/{len(every)}",
+                **loss, "used": f"{len(mine)}/{len(every)}", "disturbed": mine is every and any(
+                    w.other_s / w.seconds >= OTHER_MAX for w in every),
                 "late": sum(w.late for w in mine), "frames": sum(w.frames for w in mine),
                 "p50": statistics.median(p50s), "p99": statistics.median(p99s), "p99_low": min(p99s),
                 "p99_high": max(p99s), "other": max(w.other_s / w.seconds for w in every),
@@ -314,12 +315,15 @@ def expectation(summary: dict, rates: list[float], labels: list[str]) -> str:
     ratios = ", ".join(f"{f['share'] / r['share']:.1f}x" for f, r in zip(fogd, relay))
     latency = "; ".join(f"p50 {s['p50']:.0f} us, p99 {s['p99']:.0f} us at {hz:,.0f}/s" for s, hz in zip(fogd, rates))
     wakes = ", ".join(f"{s['wakes']:.1f}" for s in fogd)
+    disturbed = any(s["disturbed"] for s in summary.values())
     return (f"**On a dedicated box** (fogd and one consumer, nothing else running, one frame per period), expect fogd "
             f"to take about {at} of one core of a machine like this one{lag}: {ratios} the CPU of a do-nothing relay "
             f"over the same ports, {wakes} thread wake-ups per frame. Latency from a frame's last input byte to its "
             f"output frame: {latency}. The daemon section measures every process running at once, taking turns: "
             f"there the CPUs rarely go idle and a frame seldom pays for waking one, so its figures are what fogd "
-            f"costs on a machine busy with other work.")  # fmt: skip
+            f"costs on a machine busy with other work."
+            + (" (Other work ran during every window of some of these figures, `other` below: they are rough.)"
+               if disturbed else ""))  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:
