@@ -101,6 +101,7 @@ class Window:
     threads: dict[int, tuple[float, int, int]] = field(default_factory=dict)  # tid: (CPU s, voluntary, involuntary)
     halts: dict[int, int] = field(default_factory=dict)  # CPU: halts in the window
     other_s: float = 0.0  # CPU time of anything but the process under test and the harness in the window
+    harness_s: float = 0.0  # the harness's own CPU time in the window
     latencies_s: list[float] = field(default_factory=list)
 
     @property
@@ -222,7 +223,8 @@ def paced(harness: Harness, window: Window, lead_in_s: float, window_s: float, c
         was = before.threads.get(tid, (0, 0, 0))
         window.threads[tid] = ((run_ns - was[0]) / 1e9, voluntary - was[1], involuntary - was[2])
     window.halts = {cpu: after.halts[cpu] - before.halts[cpu] for cpu in cpus if after.halts[cpu] >= 0}
-    window.other_s = max(0.0, after.busy_s - before.busy_s - window.cpu_s - (after.harness_s - before.harness_s))
+    window.harness_s = after.harness_s - before.harness_s
+    window.other_s = max(0.0, after.busy_s - before.busy_s - window.cpu_s - window.harness_s)
     reads = dict(harness._read_times)
     window.latencies_s = [reads[i] - write_times[i] for i in range(lead_frames, total) if i in reads]
     return window
@@ -356,13 +358,14 @@ def main(argv: list[str] | None = None) -> int:
     labels = list(commands)
     summary = summarise(windows, labels, rates, theirs)
     print_table("3j. Dedicated box, each round: CPU (% of a core), wake-ups (voluntary switches of the process's threads) and "
-                "halts of its CPU per frame, loss, latency (us); other: CPU time of anything else, % of a core",
+                "halts of its CPU per frame, loss, latency (us); harness: its own CPU, other: CPU time of anything else, "
+                "% of a core",
                 ["round", "process", "frames/s", "CPU", "us/frame", "wakes/frame", "halts/frame", "lost", "late writes",
-                 "p50 us", "p99 us", "other"],
+                 "p50 us", "p99 us", "harness", "other"],
                 [[w.round_, w.label, f"{w.hz:,.0f}", f"{100 * w.share:.1f}%", f"{w.per_frame(w.cpu_s) * 1e6:.0f}",
                   f"{w.per_frame(w.wakes):.2f}", f"{w.per_frame(w.halts.get(theirs, float('nan'))):.2f}", w.lost, w.late,
                   f"{percentile_us(w.latencies_s, 50):.0f}", f"{percentile_us(w.latencies_s, 99):.0f}",
-                  f"{100 * w.other_s / w.seconds:.1f}%"] for w in windows])  # fmt: skip
+                  f"{100 * w.harness_s / w.seconds:.1f}%", f"{100 * w.other_s / w.seconds:.1f}%"] for w in windows])  # fmt: skip
     print_table("3k. Dedicated box, every round: CPU median (range), per frame: CPU us, wake-ups, involuntary switches, "
                 "halts of the process's CPU; per thread (main first, start order): CPU us/wake-ups per frame; latency: "
                 f"median of the rounds' (range); rounds: those used, the ones where other work took < {100 * OTHER_MAX:.0f} % "
