@@ -43,6 +43,7 @@ import ctypes
 import os
 import select
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -306,6 +307,21 @@ def summarise(windows: list[Window], labels: list[str], rates: list[float], thei
     return summary
 
 
+def checkout_label(directory: str) -> str:
+    done = subprocess.run(["git", "-C", directory, "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+    return f"fogd at {done.stdout.strip() or directory}"
+
+
+def from_checkout(directory: str, command_for):
+    """`command_for`'s process with the fogd package of `directory` first on its path (started there: `python -m`
+    puts the working directory first)."""
+    where = os.path.abspath(directory)
+
+    def command(port: str, out: str) -> list[str]:
+        return ["env", "-C", where, f"PYTHONPATH={where}", *command_for(port, out)]
+    return command
+
+
 def expectation(summary: dict, rates: list[float], labels: list[str]) -> str:
     """The paragraph the results page opens with: what a user's dedicated box should see."""
     fogd = [summary[FOGD, hz] for hz in rates]
@@ -337,6 +353,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--lead-in-s", type=float, default=None, help=f"unmeasured seconds first (default {LEAD_IN_S:g})")
     parser.add_argument("--model", default=str(DEMO_MODEL), help="model file for fogd (default: the bundled demo model)")
     parser.add_argument("--demo-only", action="store_true", help="no lag-bank model (skips its training)")
+    parser.add_argument("--also-checkout", metavar="DIR",
+                        help="also fogd (demo model) from another checkout of the project, e.g. a `git worktree add "
+                             "--detach DIR REV` of the commit before a change: both in the same rounds")  # fmt: skip
     parser.add_argument("--strict", action="store_true", help="exit 1 when a target is missed")
     args = parser.parse_args(argv)
     rounds = args.rounds or (1 if args.quick else ROUNDS)
@@ -349,6 +368,9 @@ def main(argv: list[str] | None = None) -> int:
     others = settle(settle_s)
     with tempfile.TemporaryDirectory() as scratch:
         commands = {FOGD: fogd_command(args.model)}
+        if args.also_checkout:
+            commands[checkout_label(args.also_checkout)] = from_checkout(args.also_checkout,
+                                                                            fogd_command(os.path.abspath(args.model)))
         if not args.demo_only and not args.quick:
             commands[LAG_BANK] = fogd_command(lag_bank_model(Path(scratch) / "lag-bank.json"))
         commands[RELAY] = relay_command
