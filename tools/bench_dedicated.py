@@ -32,8 +32,11 @@ as bench_daemon.py does) and the do-nothing relay (tools/bench_relay.py), each s
   this mode on the same VM).
 
 Usage: python tools/bench_dedicated.py [--quick] [--rounds N] [--rates HZ ...] [--window-s S] [--lead-in-s S]
-                                       [--demo-only] [--strict]
+                                       [--demo-only] [--also-checkout DIR] [--strict]
        (also `python tools/bench_daemon.py --dedicated ...`)
+  --also-checkout DIR: fogd (demo model) from another checkout too, in the same rounds: a change against the
+  commit before it, e.g. `git worktree add --detach /tmp/base REV`. Run it alone: `/work/wt/quiet`-style or on an
+  otherwise idle machine (about 2 minutes per process for the default 3 rounds).
 """
 
 from __future__ import annotations
@@ -52,7 +55,7 @@ from pathlib import Path
 
 import numpy as np
 from bench_common import machine, print_table, verdict
-from bench_daemon import DEMO_MODEL, FRAME_BYTES, Harness, Step, fogd_command, lag_bank_model, percentile_us, relay_command, rotated
+from bench_daemon import DEMO_MODEL, Harness, Step, fogd_command, lag_bank_model, percentile_us, relay_command, rotated
 
 RATES = (1000.0, 5000.0)
 ROUNDS = 3
