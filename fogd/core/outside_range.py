@@ -25,7 +25,7 @@ import numpy as np
 
 POLICIES = ("clamp", "trend", "linear", "edge")
 LINEAR_POLICIES = ("trend", "linear")  # the ones that need the linear fit stored beside the model
-DEFAULT_POLICY = "clamp"
+DEFAULT_POLICY = "trend"  # what fogd-train writes; measured: docs/results/range.md (tools/range_policy.py)
 EDGE_STEP = 0.5  # "edge": the secant's length back inside, scaled units (half a calibration std)
 
 
@@ -40,7 +40,7 @@ def _dot(values: Sequence[float], weights: Sequence[float]) -> float:
 class OutsideRange:
     """A policy and, for "trend" and "linear", the linear fit (coefficients and intercept, scaled units)."""
 
-    policy: str = DEFAULT_POLICY
+    policy: str = "clamp"  # a model file without `outside_range` (every file from before it): the clamp
     coef: np.ndarray | None = None
     intercept: float = 0.0
 
