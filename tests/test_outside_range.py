@@ -189,6 +189,7 @@ def dataclass_options():
         ({"policy": "linear", "coef": [1.0], "intercept": 0.0}, "outside_range.coef"),
         ({"policy": "trend", "coef": [1.0, float("inf")], "intercept": 0.0}, "outside_range.coef"),
         ({"policy": "edge", "slope": 1}, "unknown key"),
+        ({"policy": "trend", "coef": [1e12, 0.0], "intercept": 0.0}, "inside its own domain"),
     ],
 )
 def test_a_bad_outside_range_is_refused_in_one_line(change, message):

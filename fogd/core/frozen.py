@@ -1,11 +1,13 @@
 """Frozen, numpy-only model evaluators: what the daemon and replay run (never scikit-learn, never pickle).
 
 A `FrozenModel` takes raw inputs (temperature, temperature rate, ...), clamps them to the calibrated domain
-(as PX4's temperature compensation does, rather than extrapolating; a lag bank's temperatures move together,
-fogd.core.inputs.clamp_rows) and reports which rows were clamped,
+(a lag bank's temperatures move together, fogd.core.inputs.clamp_rows) and reports which rows were clamped,
 scales them, and evaluates one of the method evaluators below in the scaled space:
 
     y_dph = y_mean + y_scale * g((clamp(x) - x_mean) / x_scale)
+
+A clamped row is then served by the model's `outside` policy (fogd.core.outside_range: the clamp as above,
+or the edge continued in a straight line); inside the domain the policy changes nothing.
 
 Each evaluator's parameters are exactly what the model file stores under `params`.
 

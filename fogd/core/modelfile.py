@@ -299,7 +299,8 @@ class ModelOutputError(ModelFileError):
 
 def check_output(model: FrozenModel, source: str = "model") -> None:
     """The model's compensation must be finite and below MAX_COMP_DPH over its whole (clamped) domain: checked
-    at the domain's corners, centre and seeded random points, for the model and its guard's fallback."""
+    at the domain's corners, centre and seeded random points, for the model, its guard's fallback and its
+    outside-range policy's linear fit."""
     d = len(model.inputs)
     low, high = model.domain_min, model.domain_max
     rng = np.random.default_rng(0)
@@ -313,6 +314,10 @@ def check_output(model: FrozenModel, source: str = "model") -> None:
     guard = model.meta.get("domain_guard")
     if guard is not None:
         models.append(guard.fallback)
+    if model.outside is not None and model.outside.coef is not None:  # the outside-range policy's linear fit
+        params = {"coef": model.outside.coef, "intercept": model.outside.intercept}
+        models.append(FrozenModel("linear", model.inputs, model.x_mean, model.x_scale, model.y_mean, model.y_scale,
+                                  low, high, build_evaluator("linear", params), name=f"{model.name} (outside-range linear fit)"))
     for each in models:
         with np.errstate(all="ignore"):
             try:
