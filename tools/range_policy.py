@@ -188,7 +188,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="one case, three held-out runs; no page")
     args = parser.parse_args(argv)
     argv = sys.argv[1:] if argv is None else argv
-    header = results_header("Outside the calibrated range (tools/range_policy.py)", ["python", "tools/range_policy.py", *argv],
+    header = results_header("Outside the calibrated range (tools/range_policy.py)",
+                            ["python", "tools/range_policy.py", *argv],
                             f"1 Hz, navigation noise; swarms {SWARM['particles']} x {SWARM['iterations']}, "
                             f"stopping after {SWARM['patience']} still iterations")  # fmt: skip
     cases = [(coil, name) for coil in COILS for name in PHYSICS]
@@ -224,7 +225,8 @@ def main(argv: list[str] | None = None) -> int:
                "(a loaded, shared machine)")  # fmt: skip
     summary = ["## Verdict", "",
                f"Out-of-range blocks of every held-out run that leaves the range (above, below, faster), against the clamp: "
-               f"the chosen policy is **{chosen}**: the first of {', '.join(POLICIES)} within one standard error of the best "
+               f"the chosen policy is **{chosen}**: the first of {', '.join(POLICIES)} within one standard error "
+               "of the best "
                "(paired, run by run), the clamp unless the best beats it by more than its standard error. "
                f"Measured in {elapsed}.", "", *lines, "", "## Per case", ""]  # fmt: skip
     print("\n".join(lines), flush=True)

@@ -317,7 +317,8 @@ def check_output(model: FrozenModel, source: str = "model") -> None:
     if model.outside is not None and model.outside.coef is not None:  # the outside-range policy's linear fit
         params = {"coef": model.outside.coef, "intercept": model.outside.intercept}
         models.append(FrozenModel("linear", model.inputs, model.x_mean, model.x_scale, model.y_mean, model.y_scale,
-                                  low, high, build_evaluator("linear", params), name=f"{model.name} (outside-range linear fit)"))
+                                  low, high, build_evaluator("linear", params),
+                                  name=f"{model.name} (outside-range linear fit)"))  # fmt: skip
     for each in models:
         with np.errstate(all="ignore"):
             try:
