@@ -206,3 +206,28 @@ def linear_document() -> dict:
         y_mean=0.0, y_scale=1.0, domain_min=np.array([10.0, -0.01]), domain_max=np.array([20.0, 0.01]),
         params={"coef": [0.01, 1.0], "intercept": 0.0}, reference_dph=0.0, training={}, metrics={}, created_utc="x",
     )  # fmt: skip
+
+
+def test_the_daemon_serves_the_files_policy_as_fogd_replay_does(tmp_path):
+    """The real daemon on a pty, a ramp from 20 to 26 C through a model calibrated on 20-22 C: what it writes
+    equals fogd-replay, the samples beyond 22 C are CLAMPED and continued along the stored slope."""
+    from test_daemon_e2e import assert_same_as_replay, replayed, run_samples, stream_through_fogd
+    from test_hardening import model_document
+
+    trend = {"policy": "trend", "coef": [0.2, 0.0], "intercept": 0.0}
+    document = model_document(name="e2e-trend", domain={"min": [20.0, -5.0], "max": [22.0, 5.0]}, outside_range=trend)
+    path = tmp_path / "model.json"
+    modelfile.save(path, document)
+    samples = run_samples("fogd")
+    out, _, _ = stream_through_fogd(tmp_path, path, samples, "fogd")
+    written = np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2)
+    assert_same_as_replay(written, replayed(tmp_path, path, samples))
+    del document["outside_range"]
+    clamp_path = tmp_path / "clamp.json"
+    modelfile.save(clamp_path, document)
+    (tmp_path / "clamp").mkdir()
+    clamped = replayed(tmp_path / "clamp", clamp_path, samples)
+    temp, comp, flags = written[:, 2], written[:, 4], written[:, 6].astype(int)
+    beyond = temp > 22.0
+    assert beyond.any() and ((flags[beyond] & Flag.CLAMPED) != 0).all()
+    np.testing.assert_allclose(comp[beyond], clamped[beyond, 4] + 0.2 * (temp[beyond] - 22.0), rtol=1e-9)
