@@ -602,6 +602,7 @@ class StackedModels:
         d, count = len(inputs), len(models)
         self.models = tuple(models)
         self.inputs = inputs
+        self._beyond_columns = [k for k, model in enumerate(models) if model._beyond]  # fogd.core.outside_range
         self._shifted = models[0]._shifted
         moved = sorted(self._shifted)  # the columns clamp_rows moves together: a slice when they are adjacent
         self._moved: slice | np.ndarray = (slice(moved[0], moved[-1] + 1) if moved and moved[-1] - moved[0] + 1 == len(moved)
@@ -683,9 +684,9 @@ class StackedModels:
             comp, clamped = comp[inverse], clamped[inverse]
         else:
             comp, clamped = self._blocks(x)
-        for k, model in enumerate(self.models):  # each model's own policy beyond its domain (fogd.core.outside_range)
-            if model._beyond and clamped[:, k].any():
-                comp[clamped[:, k], k] = model.beyond_rows(x[clamped[:, k]])
+        for k in self._beyond_columns:  # each model's own policy beyond its domain (fogd.core.outside_range)
+            if clamped[:, k].any():
+                comp[clamped[:, k], k] = self.models[k].beyond_rows(x[clamped[:, k]])
         return comp, clamped
 
     def predict_one(self, x: Sequence[float]) -> tuple[list[float], list[bool]]:
@@ -695,9 +696,10 @@ class StackedModels:
         if last is not None and last[0] == x:  # quantised inputs repeat sample after sample: exact reuse
             return last[1]
         result = self._one(x)
-        for k, model in enumerate(self.models):  # each model's own policy beyond its domain (fogd.core.outside_range)
-            if model._beyond and result[1][k]:
-                result[0][k] = model.beyond_one(x)
+        if self._beyond_columns and True in result[1]:  # each model's own policy beyond its domain
+            for k in self._beyond_columns:
+                if result[1][k]:
+                    result[0][k] = self.models[k].beyond_one(x)
         if all(value == value for value in x):  # a NaN row is never remembered (NaN == NaN is False)
             self._last = (x, result)
         return result
