@@ -37,6 +37,7 @@ import argparse
 import contextlib
 import dataclasses
 import hashlib
+import re
 import sys
 import time
 from dataclasses import dataclass, fields
@@ -345,12 +346,11 @@ def print_judgement(judged: Judged, fine: bool) -> None:
 def seed_list(text: str) -> list[int]:
     """--seeds: '1-5', '1,3,7' or a mix ('1-3,9')."""
     seeds: list[int] = []
-    try:
-        for part in text.split(","):
-            first, _, last = part.partition("-")
-            seeds.extend(range(int(first), int(last or first) + 1))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: give seeds as 1-5 or 1,3,7") from None
+    for part in text.split(","):
+        match = re.fullmatch(r"(\d+)(?:-(\d+))?", part.strip())
+        if match is None:
+            raise argparse.ArgumentTypeError(f"{text!r}: give seeds as 1-5 or 1,3,7")
+        seeds.extend(range(int(match[1]), int(match[2] or match[1]) + 1))
     if not seeds:
         raise argparse.ArgumentTypeError(f"{text!r}: no seeds")
     return list(dict.fromkeys(seeds))
