@@ -373,46 +373,68 @@ def setting_name(physics) -> str:
 
 def sweep(args, done: dict[tuple, Judged]) -> None:
     """fogd-train's default (or the scheme --schemes names) on every seed of --seeds, coil, sensor and physics
-    setting (--physics, then each --sweep-physics), judged run by run; `done` holds the cells the tables already
-    judged. Prints one row per seed and a summary: the worst ratio to the bar per setting, and the runs that miss."""
+    setting (--physics, then each --sweep-physics), judged run by run, the fine sensor also calibrated on the
+    five-run programme with --sweep-five-run; `done` holds the cells the tables already judged. Prints one row per
+    seed and a summary: the worst ratio per setting, and the runs that miss their bar."""
     settings = list(dict.fromkeys([tuple(args.physics or [])] + list(args.sweep_physics or [])))
     key = "ladder" if not args.schemes or "ladder" in args.schemes else "default"
-    sensors = [sensor for sensor in SENSORS if not args.sensor or sensor.split()[0] in args.sensor]
+    variants = []  # (sensor, calibration programme or None for args'), what the rows call it
+    for sensor in SENSORS:
+        if args.sensor and sensor.split()[0] not in args.sensor:
+            continue
+        variants.append((sensor, args.calibration, sensor.split(" (")[0]))
+        if args.sweep_five_run and sensor.startswith("fine"):
+            variants.append((sensor, [as_profile(name) for name in FIVE_RUN], "fine, five-run calibration"))
+    seeds = ", ".join(map(str, args.seeds))
     summary = []
-    print(f"# fogd-train's default against issue 33's bars, seeds {', '.join(map(str, args.seeds))}", flush=True)
+    print(f"# fogd-train's default against issue 33's bars, seeds {seeds}", flush=True)
     for physics in settings:
         lines = []
         for thermal in args.thermal or THERMALS:
-            for sensor in sensors:
+            for sensor, calibration, shown in variants:
                 cells = []
                 for seed in args.seeds:
-                    cell = (physics, seed, thermal, sensor)
+                    cell = (physics, seed, thermal, sensor, calibration_names(calibration))
                     if cell not in done:
                         cell_args = argparse.Namespace(**{**vars(args), "seed": seed, "physics": list(physics),
-                                                          "schemes": [key]})  # fmt: skip
+                                                          "schemes": [key], "calibration": calibration})  # fmt: skip
                         done[cell] = judged_cell(cell_args, thermal, sensor)
                     judged = done[cell]
-                    print(f"accuracy_table: {setting_name(physics)}, seed {seed}, {thermal}, {sensor.split()[0]}: worst "
+                    print(f"accuracy_table: {setting_name(physics)}, seed {seed}, {thermal}, {shown}: worst "
                           f"{max(judged.ratios):.2f} / bar {judged.bar:g}", file=sys.stderr, flush=True)  # fmt: skip
                     cells.append((seed, judged))
-                    lines.append(f"| {seed} | {thermal} | {sensor.split(' (')[0]} | " + " | ".join(f"{r:.2f}" for r in judged.ratios)
+                    lines.append(f"| {seed} | {thermal} | {shown} | " + " | ".join(f"{r:.2f}" for r in judged.ratios)
                                  + f" | {max(judged.ratios):.2f} | {judged.bar:g} | {'met' if not judged.missed else 'MISSED'} "
                                  f"| {judged.choice.removeprefix('chose ')} |")  # fmt: skip
-                summary.append((physics, thermal, sensor, cells))
-        print(f"\nSeeds {', '.join(map(str, args.seeds))}, {setting_name(physics)}: fogd-train's default, drift over the floor "
-              "it is judged against (fine: the noise floor; whole degrees: the corrected floor)\n")  # fmt: skip
+                summary.append((physics, thermal, shown, cells))
+        print(f"\nSeeds {seeds}, {setting_name(physics)}: fogd-train's default, drift over the floor it is judged against "
+              "(fine: the noise floor; whole degrees: the corrected floor)\n")  # fmt: skip
         print("| seed | coil | sensor | " + " | ".join(HELD_OUT) + " | worst | bar | | ladder chose |")
         print("|---:|---|---|" + "---:|" * (len(HELD_OUT) + 2) + "---|---|")
         print("\n".join(lines))
-    print(f"\nSummary over seeds {', '.join(map(str, args.seeds))}: the worst ratio per setting (issue 33's bars)\n")
-    print("| physics | coil | sensor | bar | worst ratio | worst at | runs over the bar (seed: run) |")
+    print(f"\nSummary over seeds {seeds}: the worst ratio per setting (issue 33's bars)\n")
+    print("| physics | coil | sensor | bar | worst ratio | worst at | runs over the bar |")
     print("|---|---|---|---:|---:|---|---|")
-    for physics, thermal, sensor, cells in summary:
+    for physics, thermal, shown, cells in summary:
         worst_seed, worst = max(cells, key=lambda cell: max(cell[1].ratios))
         ratio = max(worst.ratios)
         where = f"seed {worst_seed}, {HELD_OUT[worst.ratios.index(ratio)]}"
-        missed = "; ".join(f"{seed}: {', '.join(judged.missed)}" for seed, judged in cells if judged.missed) or "none"
-        print(f"| {setting_name(physics)} | {thermal} | {sensor.split(' (')[0]} | {worst.bar:g} | {ratio:.2f} | {where} | {missed} |")
+        print(f"| {setting_name(physics)} | {thermal} | {shown} | {worst.bar:g} | {ratio:.2f} | {where} | {missed_runs(cells)} |")
+
+
+def missed_runs(cells: list[tuple[int, Judged]]) -> str:
+    """The held-out runs over their bar, each with the seeds it missed on ('every seed' when all)."""
+    said = []
+    for name in HELD_OUT:
+        seeds = [seed for seed, judged in cells if name in judged.missed]
+        if seeds:
+            said.append(f"{name} ({'every seed' if len(seeds) == len(cells) else 'seed ' + ', '.join(map(str, seeds))})")
+    return ", ".join(said) or "none"
+
+
+def calibration_names(calibration: list[Profile] | None) -> tuple[str, ...]:
+    """The calibration programme's profile names, in order (CALIBRATION when none is given)."""
+    return tuple(profile.name for profile in calibration) if calibration else CALIBRATION
 
 
 def judged_cell(args, thermal: str, sensor: str) -> Judged:
@@ -473,7 +495,8 @@ def page_settings(args) -> str:
     if args.physics:
         said.append("physics " + setting_name(args.physics))
     if args.seeds:
-        said.append("judged over seeds " + ", ".join(map(str, args.seeds)) + " on "
+        said.append("judged over seeds " + ", ".join(map(str, args.seeds)) + (" (the fine sensor also on the five-run "
+                    "programme)" if args.sweep_five_run else "") + " on "
                     + "; ".join(setting_name(physics) for physics in [tuple(args.physics or [])] + list(args.sweep_physics or [])))
     return "; ".join(said)
 
@@ -538,12 +561,17 @@ def main() -> None:
     parser.add_argument("--sweep-physics", type=physics_list, action="append", metavar="KEY=VALUE[,KEY=VALUE]",
                         help="with --seeds: another physics setting to sweep besides --physics' (repeatable; 'default' "
                              "for the navigation preset's gyro), e.g. sensor_on=baseplate or coil_nodes=3,housing_tau_s=3000")
+    parser.add_argument("--sweep-five-run", action="store_true",
+                        help="with --seeds: the fine sensor also calibrated on the five-run programme (its bar "
+                             f"{FINE_BARS[FIVE_RUN]:g}x)")
     parser.add_argument("--summary-only", action="store_true", help="with --seeds: no tables of every scheme, only the sweep")
     parser.add_argument("--markdown", metavar="PATH",
                         help="also write the tables as a results page (e.g. docs/results/accuracy.md), replaced whole")
     args = parser.parse_args()
-    if (args.sweep_physics or args.summary_only) and not args.seeds:
-        parser.error("--sweep-physics and --summary-only go with --seeds")
+    if (args.sweep_physics or args.summary_only or args.sweep_five_run) and not args.seeds:
+        parser.error("--sweep-physics, --sweep-five-run and --summary-only go with --seeds")
+    if args.sweep_five_run and (args.five_run or args.calibration):
+        parser.error("--sweep-five-run adds the five-run programme to the default calibration: not with --five-run or --calibration")
     if args.seeds and args.imu:
         parser.error("--seeds judges the single-axis gyro: run --imu with --seed")
     if args.five_run:
@@ -620,7 +648,7 @@ def tables(args, done: dict[tuple, Judged]) -> None:
             judged = judge(args, rows, fine, bound)
             if judged is not None:
                 print_judgement(judged, fine)
-                done[(tuple(args.physics or []), args.seed, thermal, sensor)] = judged  # the scheme the sweep judges
+                done[(tuple(args.physics or []), args.seed, thermal, sensor, calibration_names(args.calibration))] = judged
 
 
 if __name__ == "__main__":
