@@ -4,6 +4,14 @@ covered channels (a batch of a few frames, the usual one at real rates, row by r
 `process_row`), hands the encoded output to the writer thread, watches both threads, logs a periodic status
 line, and on stop drains the ring and flushes the writer.
 
+One wake-up per frame: on a box idle between frames, waking a halted CPU costs more than a frame's Python,
+and reader -> loop -> writer was a wake-up each. So the reader thread hands a read's few frames on itself
+(`take_inline`: compensate, encode, one non-blocking write when the writer thread is idle) when nothing waits
+in the ring before them and the loop is not busy; else they go through the ring as before (a large read, a
+batch the loop is compensating, the loop's duties running). `_handing_on` is the lock that makes the two
+paths take turns, so frames keep their order and the compensator has one user at a time; the reader only
+ever tries it, never waits for it, so it never waits on the loop or the consumer.
+
 Temperature may arrive in its own frames at its own rate: each rate sample gets the newest temperature that
 arrived before it, flagged TEMP_STALE when that temperature is older (in receive time) than `temp_stale_s`.
 Output time is the device time where the protocol carries one, else sample count / `rate_hz`.
@@ -59,6 +67,7 @@ status_log = logging.getLogger("fogd.status")
 
 RING_CAPACITY = 1 << 14  # frames: 0.8 s at 20 kHz, 3.3 s at a 1775's 5 kHz (about 400 bytes each as Python objects)
 MAX_BATCH = 1024  # samples per compensation step, which bounds a chunk's size in the writer's queue
+INLINE_MAX = SCALAR_CHUNK  # frames the reader hands on itself (the row path's batches); larger reads go via the ring
 IDLE_WAIT_S = 0.05
 # How long a thread that wants the GIL waits for the one computing (Python's default is 5 ms): the reader
 # must get it back within the time a pty's or UART's buffer takes to fill at full rate (4 KB at 80,000
@@ -242,6 +251,8 @@ class Daemon:
         self.counters = LoopCounters()
         self._latest = Latest()
         self._newest: tuple | None = None  # (readings, first channel's, every channel's) of the newest batch
+        self._latest_of: tuple | None = None  # the `_newest` that `_latest` was made from
+        self._handing_on = threading.Lock()  # held while frames are compensated and handed on, and for duties
         self.latency = Latency()
         self._stop = threading.Event()
         self.clock = SampleClock(rate_hz)
@@ -303,6 +314,7 @@ class Daemon:
         gc.freeze()
         self.placement.start()  # before the threads start: they inherit this thread's CPU
         self.writer.start(self.formatter.header())
+        self.reader.inline = self.take_inline
         self.reader.start()
         self.notifier.send("READY=1", f"STATUS={self.short_status()}")
         next_duties_s = started_s
@@ -310,47 +322,50 @@ class Daemon:
             while not self._stop.is_set():
                 # frames are waited for and compensated at once; the duties below run every DUTIES_S at most
                 if self.ring.wait(IDLE_WAIT_S):
-                    self._drain()
+                    with self._handing_on:
+                        self._drain()
                 now_s = time.monotonic()
                 if now_s < next_duties_s:
                     continue
                 next_duties_s = now_s + DUTIES_S
-                if self.duration_s is not None and now_s - started_s >= self.duration_s:
-                    break
-                if self.writer.consumer_gone:  # stdout's reader closed the pipe: end as a Unix filter does
-                    log.warning("output %s closed by its reader (broken pipe); stopping", self.writer.sink.name)
-                    break
-                if now_s >= next_status_s:
-                    status_log.info(self.status_line())
-                    self.latency.max_s = 0.0
-                    next_status_s = now_s + self.status_interval_s
-                if self._counters_requested.is_set():
-                    self._counters_requested.clear()
-                    status_log.info("%s | counters %s", self.status_line(), json.dumps(self.counters_dict()))
-                self._handle_reload()
-                self._follow_rate(now_s)
-                self.channels_seen.check(now_s)
-                self._watch_threads()
-                self.placement.follow(now_s)
-                if pet_every_s is not None and now_s >= next_pet_s and self.healthy(now_s):
-                    self.notifier.send("WATCHDOG=1")
-                    next_pet_s = now_s + pet_every_s
-                if now_s >= next_notify_s:
-                    self.notifier.send(f"STATUS={self.short_status()}")
-                    next_notify_s = now_s + NOTIFY_STATUS_S
-                if self.stats_path is not None and now_s >= next_stats_s:
-                    latest = self.latest
-                    self.history.append((now_s - self.started_s, latest.temp_c, latest.temp_rate_cps, latest.comp_dph,
-                                         float(latest.flags)))  # fmt: skip
-                    write_stats(self.stats_path, self.snapshot())
-                    next_stats_s = now_s + STATS_EVERY_S
-                if self.thermal is not None and now_s >= next_save_s:
-                    self.thermal.save()
-                    next_save_s = now_s + SAVE_EVERY_S
+                with self._handing_on:  # the duties and the compensation never run at once
+                    if self.duration_s is not None and now_s - started_s >= self.duration_s:
+                        break
+                    if self.writer.consumer_gone:  # stdout's reader closed the pipe: end as a Unix filter does
+                        log.warning("output %s closed by its reader (broken pipe); stopping", self.writer.sink.name)
+                        break
+                    if now_s >= next_status_s:
+                        status_log.info(self.status_line())
+                        self.latency.max_s = 0.0
+                        next_status_s = now_s + self.status_interval_s
+                    if self._counters_requested.is_set():
+                        self._counters_requested.clear()
+                        status_log.info("%s | counters %s", self.status_line(), json.dumps(self.counters_dict()))
+                    self._handle_reload()
+                    self._follow_rate(now_s)
+                    self.channels_seen.check(now_s)
+                    self._watch_threads()
+                    self.placement.follow(now_s)
+                    if pet_every_s is not None and now_s >= next_pet_s and self.healthy(now_s):
+                        self.notifier.send("WATCHDOG=1")
+                        next_pet_s = now_s + pet_every_s
+                    if now_s >= next_notify_s:
+                        self.notifier.send(f"STATUS={self.short_status()}")
+                        next_notify_s = now_s + NOTIFY_STATUS_S
+                    if self.stats_path is not None and now_s >= next_stats_s:
+                        latest = self.latest
+                        self.history.append((now_s - self.started_s, latest.temp_c, latest.temp_rate_cps,
+                                             latest.comp_dph, float(latest.flags)))  # fmt: skip
+                        write_stats(self.stats_path, self.snapshot())
+                        next_stats_s = now_s + STATS_EVERY_S
+                    if self.thermal is not None and now_s >= next_save_s:
+                        self.thermal.save()
+                        next_save_s = now_s + SAVE_EVERY_S
         finally:
             self.notifier.send("STOPPING=1")
             self.reader.stop()
-            self._drain()
+            with self._handing_on:  # (a reader that did not stop in time may still be handing frames on)
+                self._drain()
             if not self.writer.close(FLUSH_TIMEOUT_S):
                 log.warning("output did not take the last frames within %.1f s", FLUSH_TIMEOUT_S)
             status_log.info("final: %s", self.status_line())
@@ -466,26 +481,40 @@ class Daemon:
         self.counters.reloads += 1
         log.warning("reloaded: model %s (%s); estimator state %s", printable(model.name), method(models), state)
 
+    def take_inline(self, frames: list[Frame], t_rx_s: float) -> bool:
+        """The reader's offer of one read's frames: hand them on here, on its thread, when they are few, none
+        wait in the ring before them and the loop is not busy; False: they go into the ring."""
+        if len(frames) > INLINE_MAX or len(self.ring) or not self._handing_on.acquire(blocking=False):
+            return False
+        try:  # (only the reader pushes into the ring: it is still empty)
+            self._hand_on(frames, [t_rx_s] * len(frames))
+        finally:
+            self._handing_on.release()
+        return True
+
     def _drain(self) -> None:
-        """Compensate and hand on every batch in the ring."""
+        """Compensate and hand on every batch in the ring (the caller holds `_handing_on`)."""
         while True:
             frames, t_rx_s = self.ring.pop(MAX_BATCH)
             if not frames:
                 return
-            more = len(frames) == MAX_BATCH  # a short pop emptied the ring: no second pop to find it empty
-            self.counters.records_popped += len(frames)
-            try:
-                batch = self.compensate(frames, t_rx_s)
-            except Exception as error:  # a bug must cost the batch (counted), never the daemon
-                self._count_unencodable(len(frames), error)
-                continue
-            try:
-                chunk = self.formatter.encode(batch)
-            except Exception as error:  # a value the output format cannot carry: drop that frame alone
-                chunk = self._encode_each(batch, error)
-            self.writer.submit(chunk)
-            if not more:
+            self._hand_on(frames, t_rx_s)
+            if len(frames) < MAX_BATCH:  # a short pop emptied the ring: no second pop to find it empty
                 return
+
+    def _hand_on(self, frames: list[Frame], t_rx_s: list[float]) -> None:
+        """Compensate, encode and submit to the writer one batch (the caller holds `_handing_on`)."""
+        self.counters.records_popped += len(frames)
+        try:
+            batch = self.compensate(frames, t_rx_s)
+        except Exception as error:  # a bug must cost the batch (counted), never the daemon
+            self._count_unencodable(len(frames), error)
+            return
+        try:
+            chunk = self.formatter.encode(batch)
+        except Exception as error:  # a value the output format cannot carry: drop that frame alone
+            chunk = self._encode_each(batch, error)
+        self.writer.submit(chunk)
 
     def _encode_each(self, batch: OutputBatch, error: Exception) -> Chunk:
         """The batch encoded frame by frame, leaving out (and counting) the frames that cannot be encoded."""
@@ -628,8 +657,8 @@ class Daemon:
     @property
     def latest(self) -> Latest:
         """The newest compensated sample (for the status line, systemd and the stats file)."""
-        newest = self._newest
-        if newest is not None:
+        newest = self._newest  # set by whichever thread hands frames on: read once, never cleared
+        if newest is not None and newest is not self._latest_of:
             readings, comp, comps = newest
             self._latest = Latest(
                 float(readings[-1]), float(comp.comp_dph[-1]), float(comp.rate_comp_dph[-1]), float(comp.temp_c[-1]),
@@ -637,7 +666,7 @@ class Daemon:
                 None if self.plan.single else {name: {"comp": float(one.comp_dph[-1]), "flags": int(one.flags[-1])}
                                                for name, one in comps.items()},
             )  # fmt: skip
-            self._newest = None
+            self._latest_of = newest
         return self._latest
 
     def _count_domain(self, flags: np.ndarray | list[int]) -> None:

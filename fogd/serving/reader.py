@@ -16,6 +16,11 @@ millisecond before it reads again, so frames reach the loop several at a time: a
 fogd's CPU from 22.5-24.8 % of a core to 10.5-13.2 % (tools/bench_daemon.py --design 2, idle machine), below
 the single-thread prototype's 15.4-18.0 %, with nothing lost; at 1,000 frames/s it never applies.
 
+A frame costs one wake-up of one thread where it can: `inline`, when the daemon sets it, is offered each read's
+frames first and may compensate and write them on this thread (fogd.serving.daemon's `take_inline`: only a few
+frames, only when nothing waits in the ring before them and the loop is not busy); what it declines goes into
+the ring as before, so a slow step never stops the reading.
+
 `heartbeat_s` is the monotonic time the thread last came round its loop (a read returned, even empty after
 the read timeout, or a reopen attempt was made); the daemon's watchdog uses it to tell a hung reader from a
 quiet port.
@@ -84,6 +89,8 @@ class Reader:
         self._stopping = threading.Event()
         self._lost_at_s = time.monotonic()
         self._thread: threading.Thread | None = None
+        # offered each read's frames before the ring; True: handed on already (set by the daemon, see above)
+        self.inline: Callable[[list, float], bool] | None = None
 
     def start(self) -> None:
         """Start (or, after the thread died, restart) reading."""
@@ -159,6 +166,9 @@ class Reader:
         frames_in = self.counters.frames_in
         for frame in frames:
             frames_in[kind_name(frame)] += 1
+        inline = self.inline
+        if inline is not None and inline(frames, t_rx_s):
+            return
         self.ring.push(frames, t_rx_s)
 
     def _lost(self, error: BaseException) -> None:
