@@ -35,7 +35,7 @@ Usage: python tools/bench_dedicated.py [--quick] [--rounds N] [--rates HZ ...] [
                                        [--demo-only] [--also-checkout DIR] [--strict]
        (also `python tools/bench_daemon.py --dedicated ...`)
   --also-checkout DIR: fogd (demo model) from another checkout too, in the same rounds: a change against the
-  commit before it, e.g. `git worktree add --detach /tmp/base REV`. Run it alone: `/work/wt/quiet`-style or on an
+  commit before it, e.g. `git worktree add --detach /tmp/base REV`. Run it alone (pause other heavy work first) or on an
   otherwise idle machine (about 45 s per process for the default 3 rounds, plus the waits for idle seconds).
 """
 
