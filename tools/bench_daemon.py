@@ -45,7 +45,12 @@ thread: poll, read, fogd's Lexer, Daemon.compensate, Formatter, a non-blocking w
 round in one run; --design-stages adds the prototype cut after poll, lexing and compensation (each stage's
 cost in situ, cold caches included, which the in-process (e) misses); --design-rates adds rate steps.
 
+--dedicated runs tools/bench_dedicated.py instead (the rest of the arguments are its own): fogd on a dedicated,
+otherwise idle box, one process at a time alone on its CPU, frames paced one per period (issue 37). The mode
+above measures a busy machine, where the CPUs rarely go idle; that one, what a user's own small box sees.
+
 Usage: python tools/bench_daemon.py [--quick] [--strict]
+       python tools/bench_daemon.py --dedicated [bench_dedicated.py's options]
        python tools/bench_daemon.py --stages [--quick]   (only (e), for the demo and lag-bank models, 1 to 6 channels)
        python tools/bench_daemon.py --design ROUNDS [--design-stages] [--design-rates HZ ...] [--quick]
 """
@@ -155,7 +160,8 @@ class Step:
 class Harness:
     """One process under test between two ptys, driven by one select() loop."""
 
-    def __init__(self, label: str, command_for) -> None:
+    def __init__(self, label: str, command_for, cpus: set[int] | None = None) -> None:
+        """`cpus`: the CPUs the process may run on (set before it starts); default the harness's own."""
         self.label = label
         self.gyro, self.out = Pty(), Pty()
         self.cycle = frame_cycle()
@@ -163,8 +169,9 @@ class Harness:
         self.expect_seq: int | None = None  # sequence of the next frame expected back
         self.buffer = bytearray()
         self._read_times: list[tuple[int, float]] = []  # (index of the frame among those read, time of the read)
+        pin = None if cpus is None else (lambda: os.sched_setaffinity(0, cpus))
         self.process = subprocess.Popen(command_for(self.gyro.path, self.out.path), stdout=subprocess.DEVNULL,
-                                        stderr=subprocess.PIPE)  # fmt: skip
+                                        stderr=subprocess.PIPE, preexec_fn=pin)  # fmt: skip
 
     def cpu_s(self) -> tuple[float, float]:
         """CPU seconds of (the main thread, every other thread) so far: the scheduler's own nanosecond count
@@ -590,8 +597,19 @@ def percentile_us(values: list[float], q: float) -> float:
     return float(np.percentile(values, q)) * 1e6 if values else float("nan")
 
 
+CONDITION = ("condition: every process at once, taking turns (the CPUs rarely go idle between frames: a busy "
+             "machine); for a dedicated, otherwise idle box see --dedicated")  # fmt: skip
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if "--dedicated" in argv:
+        import bench_dedicated
+
+        return bench_dedicated.main([arg for arg in argv if arg != "--dedicated"])
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--dedicated", action="store_true",
+                        help="run tools/bench_dedicated.py with the other arguments: a dedicated, otherwise idle box")
     parser.add_argument("--strict", action="store_true", help="exit 1 when a target is missed")
     parser.add_argument("--quick", action="store_true", help="short steps and low rates only (smoke test)")
     parser.add_argument("--switch-interval-s", type=float, default=None,
@@ -629,6 +647,7 @@ def main(argv: list[str] | None = None) -> int:
     else:
         rates, step_s, latency_s, cpu_s = list(THROUGHPUT_RATES), 3.0, 5.0, 5.0
     print(machine())
+    print(CONDITION)
     print(f"fogd: kvh-a in, --out-format same, model {Path(args.model).name}; {step_s:g} s per rate step, "
           f"{latency_s:g} s of latency at 1000/s, {cpu_s:g} s per CPU rate")  # fmt: skip
     with tempfile.TemporaryDirectory() as scratch:

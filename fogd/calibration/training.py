@@ -15,7 +15,7 @@ import numpy as np
 
 from fogd.calibration.features import TrainingSet, training_set
 from fogd.calibration.models import FitOptions, Fitted, fit
-from fogd.core import domain, modelfile
+from fogd.core import domain, modelfile, outside_range
 from fogd.core.columns import BLOCK_S, block_samples
 from fogd.core.dequantise import COARSE_RESOLUTION_C, detect_resolution_c
 from fogd.core.errorstats import ErrorStats
@@ -52,6 +52,7 @@ class TrainConfig:
     sensor_resolution_c: float | None = None  # None: detected from the runs; a coarse sensor is dequantised
     smoothed_fit: bool = True  # fit a dequantised temperature from its offline estimate (features.training_set)
     unit: str = "deg/h"  # the channel's unit, for what training says (an accelerometer's is g)
+    outside: str = outside_range.DEFAULT_POLICY  # beyond the calibrated range (fogd.core.outside_range), as --outside-range
 
 
 def for_sensor(runs: list[Run], config: TrainConfig) -> TrainConfig:
@@ -139,6 +140,7 @@ def train(runs: list[Run], config: TrainConfig, prepared: tuple[TrainingSet, flo
         metrics=metrics,
         created_utc=created,
         domain_guard=domain_guard_document(data, error, fitted, config.fit, config.inputs) if config.domain_guard else None,
+        outside_range=outside_document(config.outside, data, error, fitted, options),
     )
     try:
         model = modelfile.from_document(document)
@@ -174,6 +176,28 @@ def options_for_inputs(options: FitOptions, specs: tuple[InputSpec, ...]) -> Fit
                                kernel_columns=kernel_columns(specs), lag_taus_s=lag_taus_s(specs))  # fmt: skip
 
 
+def linear_fit(data: TrainingSet, error: np.ndarray, fitted: Fitted, options: FitOptions) -> Fitted:
+    """The linear (IEEE 952) fit to the model's blocks and inputs, in the model's own scaling."""
+    linear = fitted if fitted.method == "linear" else fit("linear", data.x, error, data.groups, options)
+    same = all(np.array_equal(a, b) for a, b in (
+        (linear.x_mean, fitted.x_mean), (linear.x_scale, fitted.x_scale),
+        (linear.y_mean, fitted.y_mean), (linear.y_scale, fitted.y_scale)))  # fmt: skip
+    if not same:
+        raise AssertionError("the linear fit must share the model's scaling")
+    return linear
+
+
+def outside_document(policy: str, data: TrainingSet, error: np.ndarray, fitted: Fitted,
+                     options: FitOptions) -> dict[str, Any] | None:  # fmt: skip
+    """The model file's `outside_range` (fogd.core.outside_range); None for the clamp, as files without the key."""
+    if policy == "clamp":
+        return None
+    if policy not in outside_range.LINEAR_POLICIES:
+        return {"policy": policy}
+    params = linear_fit(data, error, fitted, options).params
+    return {"policy": policy, "coef": params["coef"], "intercept": params["intercept"]}
+
+
 def domain_guard_document(data: TrainingSet, error: np.ndarray, fitted: Fitted, options: FitOptions,
                           specs: tuple[InputSpec, ...]) -> dict[str, Any]:  # fmt: skip
     """The model file's `domain_guard`: the calibration blocks in the model's scaled units, the threshold and
@@ -181,12 +205,7 @@ def domain_guard_document(data: TrainingSet, error: np.ndarray, fitted: Fitted, 
     for a model with dynamic inputs (a lag bank, a dequantised estimate, a play operator: every new
     temperature history is far from the calibration runs' few trajectories through them), the joint one for
     the others (fogd.core.domain)."""
-    linear = fitted if fitted.method == "linear" else fit("linear", data.x, error, data.groups, options)
-    same = all(np.array_equal(a, b) for a, b in (
-        (linear.x_mean, fitted.x_mean), (linear.x_scale, fitted.x_scale),
-        (linear.y_mean, fitted.y_mean), (linear.y_scale, fitted.y_scale)))  # fmt: skip
-    if not same:
-        raise AssertionError("the linear fallback must share the model's scaling")
+    linear = linear_fit(data, error, fitted, options)
     points = domain.thin((data.x - fitted.x_mean) / fitted.x_scale)
     samples = None if data.x_samples is None else (data.x_samples - fitted.x_mean) / fitted.x_scale
     fallback = {"method": "linear", "params": linear.params}

@@ -42,6 +42,8 @@ from fogd.core.inputs import (
     warmup_samples,
 )
 from fogd.core.numbers import non_negative_float, positive_float, positive_int
+from fogd.core.outside_range import DEFAULT_POLICY as DEFAULT_OUTSIDE_POLICY
+from fogd.core.outside_range import POLICIES as OUTSIDE_POLICIES
 from fogd.core.runio import read_run
 from fogd.errors import (
     FogdError,
@@ -105,7 +107,15 @@ def parser() -> ArgumentParser:
         "compensated by a linear fallback. With a lag bank or a play input it guards the calibrated range "
         "(temperatures beyond the calibration runs' by more than a margin); with the paper's inputs, the "
         "joint space of temperature and rates (samples far from every calibration block). Off by default: "
-        "the clamped trend under the SVR is what a sample outside the calibration data gets",
+        "a sample outside the calibration data gets --outside-range's policy",
+    )  # fmt: skip
+    p.add_argument(
+        "--outside-range", choices=OUTSIDE_POLICIES, default=DEFAULT_OUTSIDE_POLICY,
+        help="what the model gives for inputs beyond the calibrated range (stored in the model file, so the daemon "
+        "and fogd-replay do the same; the sample is flagged CLAMPED whatever the policy): 'trend' (the model at "
+        "the range's edge continued along the slope of the linear fit to the same runs), 'clamp' (the model at "
+        "the edge), 'linear' (the linear fit itself), 'edge' (the model at the edge continued along its own "
+        f"slope there) (default: {DEFAULT_OUTSIDE_POLICY}, measured in docs/results/range.md)",
     )  # fmt: skip
     p.add_argument(
         "--force", action="store_true",
@@ -231,6 +241,7 @@ def body(argv: Sequence[str] | None) -> int:
         method=args.method,
         inputs=inputs,
         domain_guard=args.domain_guard,
+        outside=args.outside_range,
         block_s=args.block_s,
         reference=_reference(args.reference),
         fit=FitOptions(

@@ -18,7 +18,9 @@ Policies (documented in docs/reference/flags-and-counters.md):
 - Invalid rate (NaN, Inf, or the caller's `rate_valid` false): flagged RATE_INVALID; the estimator still
   advances, the compensated rate is the input passed through unchanged and the compensation is 0 (what
   was subtracted).
-- Calibrated domain: inputs are clamped to the training range and the sample flagged CLAMPED.
+- Calibrated domain: a sample with an input beyond the training range is flagged CLAMPED and served by the
+  model's outside-range policy (fogd.core.outside_range: the model at the clamped edge, continued along the
+  linear fit's slope by default), inside FrozenModel.predict and predict_one alike.
 - Guarded domain (models with a `domain_guard`, fogd.core.domain): a sample beyond the calibrated range by
   more than the guard's margin ("range", lag-bank models), or far from every calibration block in the scaled
   joint space ("joint", the paper's inputs), is flagged OUT_OF_DOMAIN and compensated by the fallback model

@@ -1,11 +1,13 @@
 """Frozen, numpy-only model evaluators: what the daemon and replay run (never scikit-learn, never pickle).
 
 A `FrozenModel` takes raw inputs (temperature, temperature rate, ...), clamps them to the calibrated domain
-(as PX4's temperature compensation does, rather than extrapolating; a lag bank's temperatures move together,
-fogd.core.inputs.clamp_rows) and reports which rows were clamped,
+(a lag bank's temperatures move together, fogd.core.inputs.clamp_rows) and reports which rows were clamped,
 scales them, and evaluates one of the method evaluators below in the scaled space:
 
     y_dph = y_mean + y_scale * g((clamp(x) - x_mean) / x_scale)
+
+A clamped row is then served by the model's `outside` policy (fogd.core.outside_range: the clamp as above,
+or the edge continued in a straight line); inside the domain the policy changes nothing.
 
 Each evaluator's parameters are exactly what the model file stores under `params`.
 
@@ -27,6 +29,7 @@ from typing import Callable, NamedTuple, Sequence
 import numpy as np
 
 from fogd.core.inputs import InputSpec, clamp_rows, shifted_columns
+from fogd.core.outside_range import OutsideRange
 
 _CHUNK_ROWS = 4096  # kernel evaluations in blocks, so memory stays bounded on million-row replays
 # Above this many kernel terms x inputs one row is cheaper through numpy than a Python loop (tools/bench_point.py:
@@ -371,9 +374,12 @@ class FrozenModel:
     evaluator: Evaluator
     name: str = "model"
     meta: dict = field(default_factory=dict, compare=False)
+    outside: OutsideRange | None = field(default=None, compare=False)  # beyond the domain (None: the clamp)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "_shifted", shifted_columns(self.inputs))  # clamp_rows' temperature columns
+        beyond = self.outside is not None and self.outside.policy != "clamp"
+        object.__setattr__(self, "_beyond", beyond)  # fogd.core.outside_range: a policy other than the clamp
 
     def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(thermal error in deg/h, True where an input was clamped) for raw input rows x of shape (n, d)."""
@@ -384,8 +390,62 @@ class FrozenModel:
             # Exact: a row's result depends on that row alone, and quantised temperatures (and the rates eq. 16
             # makes of them) repeat, so a million-row replay holds a few ten thousand distinct rows.
             rows, inverse = unique_rows(clamped_x)
-            return self.predict_unclamped(rows)[inverse], clamped
-        return self.predict_unclamped(clamped_x), clamped
+            comp = self.predict_unclamped(rows)[inverse]
+        else:
+            comp = self.predict_unclamped(clamped_x)
+        if self._beyond and clamped.any():
+            comp[clamped] = self.beyond_rows(x[clamped])
+        return comp, clamped
+
+    def beyond_rows(self, x: np.ndarray) -> np.ndarray:
+        """The thermal error of raw rows outside the domain by the model's `outside` policy (fogd.core.outside_range)."""
+        mean, scale = self.x_mean, self.x_scale
+        clamp = lambda rows: clamp_rows(rows, self.domain_min, self.domain_max, self._shifted)  # noqa: E731
+
+        def inside_g(ys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            back = (clamp(ys * scale + mean) - mean) / scale
+            return self.evaluator(back), back
+
+        cs = (clamp(x) - mean) / scale
+        g = self.outside.rows((x - mean) / scale, cs, self.evaluator(cs), inside_g)
+        return self.y_mean + self.y_scale * g
+
+    def beyond_one(self, x: Sequence[float]) -> float:
+        """`beyond_rows` of one raw row of Python floats."""
+        lows, highs, means, scales = self._point_constants()
+        evaluate = getattr(self.evaluator, "point", None)
+        if evaluate is None:
+            evaluate = lambda xs: float(self.evaluator(np.array([xs], dtype=np.float64))[0])  # noqa: E731
+
+        def scaled_clamp(row: Sequence[float]) -> list[float]:
+            used, _ = self._clamp_one(row, lows, highs)
+            return [(u - m) / s for u, m, s in zip(used, means, scales)]
+
+        def inside_g(ys: list[float]) -> tuple[float, list[float]]:
+            back = scaled_clamp([y * s + m for y, m, s in zip(ys, means, scales)])
+            return evaluate(back), back
+
+        cs = scaled_clamp(x)
+        xs = [(v - m) / s for v, m, s in zip(x, means, scales)]
+        return self.y_mean + self.y_scale * self.outside.one(xs, cs, evaluate(cs), inside_g)
+
+    def _clamp_one(self, x: Sequence[float], lows: Sequence[float], highs: Sequence[float]) -> tuple[list[float], bool]:
+        """clamp_rows of one row in Python floats: (the row used, True if it moved)."""
+        shifted = self._shifted
+        if shifted:  # the temperature columns move by their first one's clip
+            first = shifted[0]
+            value, low, high = x[first], lows[first], highs[first]
+            shift = (low if value < low else high if value > high else value) - value
+        used, clamped = [], False
+        for column, (value, low, high) in enumerate(zip(x, lows, highs)):
+            if shifted and column in shifted:
+                new = value + shift
+            else:
+                new = low if value < low else high if value > high else value  # np.clip; NaN stays NaN
+            if new != value:
+                clamped = True
+            used.append(new)
+        return used, clamped
 
     def predict_one(self, x: Sequence[float]) -> tuple[float, bool]:
         """`predict` for one row of Python floats: (thermal error in deg/h, True if an input was clamped)."""
@@ -393,7 +453,7 @@ class FrozenModel:
         rows = self.__dict__.get("_rows")
         if rows is None:
             rows = self._row_path()
-        if rows is not False:  # a large kernel model: its trend and kernel in a few numpy calls
+        if rows is not False:  # a large kernel model: its trend and kernel in a few numpy calls (and the policy)
             comps, clamped_all = rows.predict_one(x)
             return comps[0], clamped_all[0]
         if point is None:  # a plain callable evaluator: the array path
@@ -407,7 +467,7 @@ class FrozenModel:
         xs = []
         lows, highs, means, scales = self._point_constants()
         shifted = self._shifted
-        if shifted:  # clamp_rows, in Python floats
+        if shifted:  # clamp_rows, in Python floats (as `_clamp_one`, inline: the daemon's hot path)
             first = shifted[0]
             value, low, high = x[first], lows[first], highs[first]
             shift = (low if value < low else high if value > high else value) - value
@@ -419,6 +479,8 @@ class FrozenModel:
             if used != value:
                 clamped = True
             xs.append((used - mean) / scale)
+        if clamped and self._beyond:
+            return self.beyond_one(x), True
         result = (self.y_mean + self.y_scale * point(xs), clamped)
         if not clamped:  # (NaN inputs count as clamped, so a remembered row never holds one)
             object.__setattr__(self, "_last_point", (x, result))
@@ -540,6 +602,7 @@ class StackedModels:
         d, count = len(inputs), len(models)
         self.models = tuple(models)
         self.inputs = inputs
+        self._beyond_columns = [k for k, model in enumerate(models) if model._beyond]  # fogd.core.outside_range
         self._shifted = models[0]._shifted
         moved = sorted(self._shifted)  # the columns clamp_rows moves together: a slice when they are adjacent
         self._moved: slice | np.ndarray = (slice(moved[0], moved[-1] + 1) if moved and moved[-1] - moved[0] + 1 == len(moved)
@@ -618,8 +681,13 @@ class StackedModels:
         if len(x) >= _UNIQUE_MIN_ROWS:  # exact, as FrozenModel.predict: a row's result is that row's alone
             rows, inverse = unique_rows(x)
             comp, clamped = self._blocks(rows)
-            return comp[inverse], clamped[inverse]
-        return self._blocks(x)
+            comp, clamped = comp[inverse], clamped[inverse]
+        else:
+            comp, clamped = self._blocks(x)
+        for k in self._beyond_columns:  # each model's own policy beyond its domain (fogd.core.outside_range)
+            if clamped[:, k].any():
+                comp[clamped[:, k], k] = self.models[k].beyond_rows(x[clamped[:, k]])
+        return comp, clamped
 
     def predict_one(self, x: Sequence[float]) -> tuple[list[float], list[bool]]:
         """`predict` of one row of Python floats, as lists by model: the same floats as `predict`."""
@@ -628,6 +696,10 @@ class StackedModels:
         if last is not None and last[0] == x:  # quantised inputs repeat sample after sample: exact reuse
             return last[1]
         result = self._one(x)
+        if self._beyond_columns and True in result[1]:  # each model's own policy beyond its domain
+            for k in self._beyond_columns:
+                if result[1][k]:
+                    result[0][k] = self.models[k].beyond_one(x)
         if all(value == value for value in x):  # a NaN row is never remembered (NaN == NaN is False)
             self._last = (x, result)
         return result

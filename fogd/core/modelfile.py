@@ -58,6 +58,8 @@ from fogd.core.dequantise import PACES
 from fogd.core.domain import GUARD_KINDS, DomainGuard
 from fogd.core.estimator import EstimatorSettings
 from fogd.core.frozen import FrozenModel, build_evaluator
+from fogd.core.outside_range import LINEAR_POLICIES, OutsideRange
+from fogd.core.outside_range import POLICIES as OUTSIDE_POLICIES
 from fogd.core.inputs import (
     KINDS,
     MAX_RESOLUTION_C,
@@ -88,7 +90,11 @@ TOP_KEYS = {
     "format", "version", "name", "method", "inputs", "input_scaling", "output_scaling", "domain", "params",
     "reference_dph", "training", "metrics", "created_utc", "fogd_version",
 }  # fmt: skip
-OPTIONAL_TOP_KEYS = {"domain_guard"}
+OPTIONAL_TOP_KEYS = {"domain_guard", "outside_range"}
+# outside_range (optional; without it "clamp"): fogd.core.outside_range's policy, and for "trend" and "linear" the
+# linear fit's coef and intercept in the model's own scaling
+OUTSIDE_KEYS = {"policy"}
+OPTIONAL_OUTSIDE_KEYS = {"coef", "intercept"}
 # metrics.held_out (optional, from fogd-train's ladder): the chosen model's held-out drift RMSE and its standard
 # error over the folds (in the channel's unit: deg/h, or g for an accelerometer), how the folds were cut, the rung
 HELD_OUT_KEYS = {"drift_rmse_dph", "spread_dph", "folds"}
@@ -141,9 +147,12 @@ def document(
     metrics: dict[str, Any],
     created_utc: str,
     domain_guard: dict[str, Any] | None = None,
+    outside_range: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """A model document in the file's layout, ready for `save`."""
     optional = {} if domain_guard is None else {"domain_guard": domain_guard}
+    if outside_range is not None:
+        optional["outside_range"] = outside_range
     return {
         "format": MODEL_FORMAT,
         "version": _version(inputs),
@@ -290,7 +299,8 @@ class ModelOutputError(ModelFileError):
 
 def check_output(model: FrozenModel, source: str = "model") -> None:
     """The model's compensation must be finite and below MAX_COMP_DPH over its whole (clamped) domain: checked
-    at the domain's corners, centre and seeded random points, for the model and its guard's fallback."""
+    at the domain's corners, centre and seeded random points, for the model, its guard's fallback and its
+    outside-range policy's linear fit."""
     d = len(model.inputs)
     low, high = model.domain_min, model.domain_max
     rng = np.random.default_rng(0)
@@ -304,6 +314,11 @@ def check_output(model: FrozenModel, source: str = "model") -> None:
     guard = model.meta.get("domain_guard")
     if guard is not None:
         models.append(guard.fallback)
+    if model.outside is not None and model.outside.coef is not None:  # the outside-range policy's linear fit
+        params = {"coef": model.outside.coef, "intercept": model.outside.intercept}
+        models.append(FrozenModel("linear", model.inputs, model.x_mean, model.x_scale, model.y_mean, model.y_scale,
+                                  low, high, build_evaluator("linear", params),
+                                  name=f"{model.name} (outside-range linear fit)"))  # fmt: skip
     for each in models:
         with np.errstate(all="ignore"):
             try:
@@ -433,6 +448,7 @@ def from_document(doc: Any, *, source: str = "model") -> FrozenModel:
         evaluator=build_evaluator(method, params),
         name=name,
         meta=meta,
+        outside=check.outside(doc["outside_range"], d) if "outside_range" in doc else None,
     )
     check_output(model, source)
     return model
@@ -549,6 +565,18 @@ class _Checker:
         if len(set(specs)) != len(specs):
             self.fail("inputs", "lists the same input twice")
         return tuple(specs)
+
+    def outside(self, value: Any, d: int) -> OutsideRange:
+        self.mapping(value, "outside_range", OUTSIDE_KEYS, optional=OPTIONAL_OUTSIDE_KEYS)
+        policy = value["policy"]
+        if policy not in OUTSIDE_POLICIES:
+            self.fail("outside_range.policy", f"is {str(policy)[:40]!r}; expected one of {', '.join(OUTSIDE_POLICIES)}")
+        if (policy in LINEAR_POLICIES) != ("coef" in value and "intercept" in value):
+            self.fail("outside_range", f"needs coef and intercept with policy {policy!r}, and only then")
+        if policy not in LINEAR_POLICIES:
+            return OutsideRange(policy)
+        coef = self.vector(value["coef"], "outside_range.coef", d)
+        return OutsideRange(policy, coef, self.number(value["intercept"], "outside_range.intercept"))
 
     def guard(self, value: Any, inputs, x_mean, x_scale, y_mean, y_scale, domain_min, domain_max, name) -> DomainGuard:
         self.mapping(value, "domain_guard", GUARD_KEYS, optional=OPTIONAL_GUARD_KEYS)

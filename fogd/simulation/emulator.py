@@ -723,8 +723,9 @@ class Emulator:
                         self._said_no_reader = True
                 if self._stop.is_set():
                     raise _Stopped
-                if not self.pty.wait_writable(POLL_MS):
+                if not self.pty.wait_writable(POLL_MS) and not self.pty.reader_present():
                     self._stop.wait(NO_READER_RETRY_S)  # no reader: poll returns at once with POLLHUP
+                # (a reader slower than POLL_MS is polled again at once: it is there, only busy)
         finally:  # a stop while blocked still counts the time it waited
             if blocked_since is not None:
                 blocked_s = time.monotonic() - blocked_since
