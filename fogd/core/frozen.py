@@ -29,7 +29,7 @@ from typing import Callable, NamedTuple, Sequence
 import numpy as np
 
 from fogd.core.inputs import InputSpec, clamp_rows, shifted_columns
-from fogd.core.outside_range import OutsideRange
+from fogd.core.outside_range import OutsideRange, point_dot
 
 _CHUNK_ROWS = 4096  # kernel evaluations in blocks, so memory stays bounded on million-row replays
 # Above this many kernel terms x inputs one row is cheaper through numpy than a Python loop (tools/bench_point.py:
@@ -42,13 +42,6 @@ POINT_TREND_TERMS = 40
 
 def _floats(values: np.ndarray) -> tuple:
     return tuple(np.asarray(values, dtype=np.float64).tolist())
-
-
-def _point_dot(xs: Sequence[float], weights: tuple) -> float:
-    total = 0.0
-    for x, w in zip(xs, weights):
-        total += x * w
-    return total
 
 
 def _row_dot(rows: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -71,7 +64,7 @@ class Linear:
         object.__setattr__(self, "_coef", _floats(self.coef))
 
     def point(self, xs: Sequence[float]) -> float:
-        return _point_dot(xs, self._coef) + self.intercept
+        return point_dot(xs, self._coef) + self.intercept
 
 
 def monomials(xs: np.ndarray, powers: np.ndarray) -> np.ndarray:
@@ -318,7 +311,7 @@ class Svr:
     def point(self, xs: Sequence[float]) -> float:
         columns, mix = self.kernel_columns, self._mix
         kernel = self._point(xs if columns is None else [xs[column] for column in columns])
-        trend = self._trend_point(xs) if mix is None else self._trend_point([*xs, _point_dot(xs, mix)])
+        trend = self._trend_point(xs) if mix is None else self._trend_point([*xs, point_dot(xs, mix)])
         return trend + kernel + self.intercept
 
 

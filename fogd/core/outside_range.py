@@ -29,7 +29,8 @@ DEFAULT_POLICY = "trend"  # what fogd-train writes; measured: docs/results/range
 EDGE_STEP = 0.5  # "edge": the secant's length back inside, scaled units (half a calibration std)
 
 
-def _dot(values: Sequence[float], weights: Sequence[float]) -> float:
+def point_dot(values: Sequence[float], weights: Sequence[float]) -> float:
+    """values . weights for Python floats, summed in column order (as the array paths sum a row)."""
     total = 0.0
     for value, weight in zip(values, weights):
         total += value * weight
@@ -81,16 +82,16 @@ class OutsideRange:
         if self.policy == "clamp":
             return edge_g
         if self.policy == "trend":
-            return edge_g + _dot([x - c for x, c in zip(xs, cs)], self._coef)
+            return edge_g + point_dot([x - c for x, c in zip(xs, cs)], self._coef)
         if self.policy == "linear":
-            return _dot(xs, self._coef) + self.intercept
+            return point_dot(xs, self._coef) + self.intercept
         away = [x - c for x, c in zip(xs, cs)]
-        length = math.sqrt(_dot(away, away))
+        length = math.sqrt(point_dot(away, away))
         if not length > 0:  # NaN
             return math.nan
         back_g, back = inside_g([c - a * (EDGE_STEP / length) for c, a in zip(cs, away)])
         moved = [b - c for b, c in zip(back, cs)]
-        step = math.sqrt(_dot(moved, moved))
+        step = math.sqrt(point_dot(moved, moved))
         slope = (edge_g - back_g) / step if step > 0 else 0.0
         return edge_g + slope * length
 
