@@ -32,7 +32,7 @@ from typing import Callable
 
 import numpy as np
 
-from fogd.calibration.models.folds import MIN_RUNS_LEFT_OUT, Split, drift_rmse, run_levels, time_folds
+from fogd.calibration.models.folds import MIN_RUNS_LEFT_OUT, Split, drift_rmse, held_out_stretches, time_folds
 from fogd.calibration.selection import fit_family, nested_residual
 from fogd.calibration.training import TrainConfig, Trained, for_sensor, options_for_inputs, prepare
 from fogd.core.inputs import DEFAULT_INPUTS_TEXT, InputSpec, describe_inputs, parse_inputs, shifted_columns
@@ -102,7 +102,8 @@ class Ladder:
 
     def table(self, unit: str = "deg/h") -> list[str]:
         """The rungs as a markdown table, for the report."""
-        lines = [f"Model ladder ({self.folds}; the simplest rung within one standard error of the best):", "",
+        lines = [f"Model ladder ({self.folds}; the simplest rung within one standard error of the best, that of "
+                 "their per-fold differences):", "",
                  f"| Rung | Model | Held-out drift ({unit}) | Standard error | |", "|---|---|---:|---:|---|"]  # fmt: skip
         lines += [f"| {s.rung.name} | {s.rung.method} `{describe_inputs(s.inputs)}` | {s.drift_rmse_dph:.3e} | "
                   f"{s.spread_dph:.2e} | {'chosen' if s is self.chosen else ''} |" for s in self.scored]  # fmt: skip
@@ -112,7 +113,8 @@ class Ladder:
         """What was chosen and why, with every rung's held-out figure, in one line."""
         best = min(self.scored, key=lambda s: s.drift_rmse_dph)
         why = ("the best held-out drift" if self.chosen is best else
-               f"the simplest within one standard error of the best ({best.rung.name})")  # fmt: skip
+               f"the simplest within one standard error of the best ({best.rung.name}; the error of their "
+               f"per-fold differences, {paired_spread(self.chosen, best):.2g})")  # fmt: skip
         figures = "; ".join(f"{s.rung.name} {s.drift_rmse_dph:.3g} ± {s.spread_dph:.2g}" for s in self.scored)
         return (f"ladder: chose {self.chosen.rung.name} ({self.chosen.rung.method} [{describe_inputs(self.chosen.inputs)}]), "
                 f"{why}; held-out drift ({unit}, {self.folds}): {figures}")  # fmt: skip
@@ -133,21 +135,33 @@ def affordable_gap(groups: np.ndarray, n_folds: int) -> int:
 
 
 def uncompensated(error_dph: np.ndarray, groups: np.ndarray, splits: list[Split]) -> float:
-    """The held-out drift of no compensation on the same folds: each held-out stretch at its run's level on the
-    training rows (what the rungs' residuals are scored about), so that "worse than nothing" compares like
-    with like; the calibration blocks' own spread is smaller wherever the folds make a level hard to know."""
-    residual = np.full_like(error_dph, np.nan)
-    for train, test in splits:
-        residual[test] = run_levels(error_dph[train], groups[train], groups[test]) - error_dph[test]
-    return drift_rmse(residual, groups)
+    """The held-out drift of no compensation on the same folds, scored as the rungs are (each held-out stretch
+    about its own mean), so that "worse than nothing" compares like with like."""
+    return drift_rmse(error_dph, held_out_stretches(groups, splits))
+
+
+def score(residual: np.ndarray, groups: np.ndarray, splits: list[Split]) -> tuple[float, float, list[float]]:
+    """A rung's held-out figures from its residuals: the drift with each held-out stretch about its own mean
+    (`held_out_stretches`), the standard error of its per-fold figures and those figures (a fold: its runs'
+    stretches, each about its own mean)."""
+    per_fold = [drift_rmse(residual[test], groups[test]) for _, test in splits]
+    spread = float(np.std(per_fold, ddof=1) / math.sqrt(len(per_fold))) if len(per_fold) > 1 else 0.0
+    return drift_rmse(residual, held_out_stretches(groups, splits)), spread, per_fold
+
+
+def paired_spread(rung: Scored, best: Scored) -> float:
+    """The standard error of the per-fold differences between two rungs scored on the same folds (`choose`)."""
+    differences = np.subtract(rung.fold_rmse_dph, best.fold_rmse_dph)
+    return float(np.std(differences, ddof=1) / math.sqrt(differences.size)) if differences.size > 1 else 0.0
 
 
 def choose(scored: list[Scored]) -> Scored:
-    """The one-standard-error rule: the first (simplest) rung whose drift is within one standard error of the
-    best rung's."""
-    best = min(scored, key=lambda s: s.drift_rmse_dph)
-    limit = best.drift_rmse_dph + best.spread_dph
-    return next(s for s in scored if s.drift_rmse_dph <= limit)
+    """The one-standard-error rule: of the rungs that improve on every simpler rung (a richer rung no better
+    than a simpler one is never worth its complexity), the first whose drift is within one standard error of
+    the best rung's, the standard error of their paired per-fold differences (module docstring)."""
+    front = [s for i, s in enumerate(scored) if all(s.drift_rmse_dph < t.drift_rmse_dph for t in scored[:i])]
+    best = front[-1]
+    return next(s for s in front if s.drift_rmse_dph <= best.drift_rmse_dph + paired_spread(s, best))
 
 
 def climb(runs, config: TrainConfig, rungs: tuple[Rung, ...] = RUNGS, log: Callable[[str], None] | None = None,
@@ -183,13 +197,11 @@ def climb(runs, config: TrainConfig, rungs: tuple[Rung, ...] = RUNGS, log: Calla
             if log:
                 log(f"ladder: {rung.name} skipped: {error}")
             continue
-        per_fold = [drift_rmse(residual[test], data.groups[test]) for _, test in splits]
-        spread = float(np.std(per_fold, ddof=1) / math.sqrt(len(per_fold))) if len(per_fold) > 1 else 0.0
-        scored.append(Scored(rung, specs, drift_rmse(residual, data.groups), spread, per_fold,
-                             time.perf_counter() - started, prepared))  # fmt: skip
+        drift, spread, per_fold = score(residual, groups, splits)
+        scored.append(Scored(rung, specs, drift, spread, per_fold, time.perf_counter() - started, prepared))
         if log:
             log(f"ladder: {rung.name}: held-out drift {scored[-1].drift_rmse_dph:.4e} ± {spread:.2e} {unit} "
-                f"({scored[-1].seconds:.1f} s)")  # fmt: skip
+                f"({scored[-1].seconds:.1f} s); per fold {' '.join(f'{v:.3g}' for v in per_fold)}")  # fmt: skip
     if not scored:
         raise InputError("ladder: no model could be scored on these runs; record more or longer runs")
     chosen = choose(scored)

@@ -69,6 +69,18 @@ def time_folds(groups: np.ndarray, n_folds: int, gap_rows: int, min_runs: int = 
     return [(rows[~near[fold]], rows[fold_of == fold]) for fold in range(n_folds)]
 
 
+def held_out_stretches(groups: np.ndarray, splits: list[Split]) -> np.ndarray:
+    """A label for each row naming its held-out stretch: the fold that tests it and its run. With
+    leave-one-run-out a stretch is a whole run; with time folds, the k-th stretch of one run. Scoring residuals
+    about each stretch's own mean judges a stretch as if it were a run of its own (`drift_rmse`)."""
+    groups = np.asarray(groups)
+    _, run = np.unique(groups, return_inverse=True)
+    fold = np.full(groups.size, -1)
+    for k, (_, test) in enumerate(splits):
+        fold[test] = k
+    return fold * (int(run.max(initial=0)) + 1) + run
+
+
 def fit_in_runs(estimator, xs: np.ndarray, ys: np.ndarray, groups: np.ndarray | None):
     """`estimator.fit`, with the rows' runs for estimators that fit one offset per run."""
     if groups is not None and "groups" in inspect.signature(estimator.fit).parameters:
