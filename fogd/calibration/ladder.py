@@ -32,7 +32,7 @@ from typing import Callable
 
 import numpy as np
 
-from fogd.calibration.models.folds import MIN_RUNS_LEFT_OUT, Split, drift_rmse, held_out_stretches, time_folds
+from fogd.calibration.models.folds import MIN_RUNS_LEFT_OUT, Split, drift_rmse, held_out_stretches, stretch_folds
 from fogd.calibration.selection import fit_family, nested_residual
 from fogd.calibration.training import TrainConfig, Trained, for_sensor, options_for_inputs, prepare
 from fogd.core.inputs import DEFAULT_INPUTS_TEXT, InputSpec, describe_inputs, parse_inputs, shifted_columns
@@ -186,7 +186,7 @@ def climb(runs, config: TrainConfig, rungs: tuple[Rung, ...] = RUNGS, log: Calla
             data, reference = prepared
             if splits is None:
                 gap = min(gap, affordable_gap(data.groups, config.fit.folds))
-                splits, groups = time_folds(data.groups, config.fit.folds, gap), data.groups
+                splits, groups = stretch_folds(data.groups, config.fit.folds, gap), data.groups
                 nothing_dph = uncompensated(data.rate_dph - reference, groups, splits)
             elif not np.array_equal(groups, data.groups):
                 raise AssertionError("every rung must be scored on the very same blocks")
@@ -211,5 +211,6 @@ def climb(runs, config: TrainConfig, rungs: tuple[Rung, ...] = RUNGS, log: Calla
     trained = fit_family(runs, final, chosen.prepared, rung.method)
     n_runs = len(np.unique(groups))
     folds = (f"leave-one-run-out, {n_runs} runs" if n_runs >= MIN_RUNS_LEFT_OUT else
-             f"{len(splits)} time folds of {'each run' if n_runs > 1 else 'the run'}, {gap} blocks apart")  # fmt: skip
+             f"{len(splits)} time folds ({config.fit.folds} stretches of each run, one at a time), {gap} blocks apart" if n_runs > 1 else
+             f"{len(splits)} time folds of the run, {gap} blocks apart")  # fmt: skip
     return Ladder(scored, chosen, folds, trained, nothing_dph)
