@@ -192,7 +192,8 @@ def climb(runs, config: TrainConfig, rungs: tuple[Rung, ...] = RUNGS, log: Calla
                 raise AssertionError("every rung must be scored on the very same blocks")
             scoring = dataclasses.replace(options, particles=min(options.particles, SCORE_PARTICLES), folds=SCORE_FOLDS,
                                           patience=min(options.patience or SCORE_PATIENCE, SCORE_PATIENCE))  # fmt: skip
-            residual = nested_residual(rung.method, data, data.rate_dph - reference, scoring, shifted_columns(specs), splits)
+            residual = nested_residual(rung.method, data, data.rate_dph - reference, scoring, shifted_columns(specs), splits,
+                                       config.outside)  # as the model will be served beyond its range
         except InputError as error:  # too few rows for this rung: say so, climb on
             if log:
                 log(f"ladder: {rung.name} skipped: {error}")
