@@ -205,7 +205,7 @@ def served(fitted: Fitted, x: np.ndarray, low: np.ndarray, high: np.ndarray, shi
 
 
 def outside_policy(outside: str, fitted: Fitted, x: np.ndarray, error_dph: np.ndarray, groups: np.ndarray,
-            options: FitOptions) -> OutsideRange:  # fmt: skip
+                   options: FitOptions) -> OutsideRange:  # fmt: skip
     """The policy `outside` with, for "trend" and "linear", the linear fit to the same rows (as fogd-train stores
     it: fogd.calibration.training.outside_document), in the model's scaling."""
     if outside not in LINEAR_POLICIES:

@@ -70,7 +70,7 @@ def time_folds(groups: np.ndarray, n_folds: int, gap_rows: int, min_runs: int = 
 
 def held_out_stretches(groups: np.ndarray, splits: list[Split]) -> np.ndarray:
     """A label for each row naming its held-out stretch: the fold that tests it and its run. With
-    leave-one-run-out a stretch is a whole run; with time folds, the k-th stretch of one run. Scoring residuals
+    leave-one-run-out a stretch is a whole run; with time folds, a stretch of one run. Scoring residuals
     about each stretch's own mean judges a stretch as if it were a run of its own (`drift_rmse`)."""
     groups = np.asarray(groups)
     _, run = np.unique(groups, return_inverse=True)
