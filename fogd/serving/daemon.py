@@ -486,7 +486,8 @@ class Daemon:
     def take_inline(self, frames: list[Frame], t_rx_s: float) -> bool:
         """The reader's offer of one read's frames: hand them on here, on its thread, when they are few, none
         wait in the ring before them and the loop is not busy; False: they go into the ring."""
-        if len(frames) > INLINE_MAX or len(self.ring) or not self._handing_on.acquire(blocking=False):
+        ring = self.reader.ring  # (its counters, not len(): two calls a frame fewer on the reader's path)
+        if len(frames) > INLINE_MAX or ring.pushed != ring.popped or not self._handing_on.acquire(False):
             return False
         try:  # (only the reader pushes into the ring: it is still empty)
             self._hand_on(frames, [t_rx_s] * len(frames))
@@ -507,8 +508,12 @@ class Daemon:
     def _hand_on(self, frames: list[Frame], t_rx_s: list[float]) -> None:
         """Compensate, encode and submit to the writer one batch (the caller holds `_handing_on`)."""
         self.counters.records_popped += len(frames)
-        try:
-            batch = self.compensate(frames, t_rx_s)
+        thermal = self.thermal
+        try:  # (a few frames once started go straight to the row path: `compensate`'s choice, a call less)
+            if len(frames) <= SCALAR_CHUNK and (thermal is None or not thermal.pending):
+                batch = self._compensate_rows(frames, t_rx_s)
+            else:
+                batch = self.compensate(frames, t_rx_s)
         except Exception as error:  # a bug must cost the batch (counted), never the daemon
             self._count_unencodable(len(frames), error)
             return
