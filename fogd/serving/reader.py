@@ -165,7 +165,7 @@ class Reader:
     def _push(self, frames: list, t_rx_s: float) -> None:
         frames_in, names = self.counters.frames_in, COUNT_NAMES
         for frame in frames:
-            frames_in[names.get(frame.kind, "other")] += 1  # ring.kind_name, inline (a call a frame less)
+            frames_in[names.get(frame.kind, "other")] += 1  # 'comp' is 'other': fogd does not re-compensate its own output
         inline = self.inline
         if inline is not None and inline(frames, t_rx_s):
             return

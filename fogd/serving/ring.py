@@ -25,11 +25,6 @@ RATE_KINDS = frozenset(("imu", "rate"))  # frames carrying a gyro rate the daemo
 TEMP_KINDS = frozenset(("imu", "temp"))  # frames whose temperature the daemon holds
 
 
-def kind_name(frame: Frame) -> str:
-    """The reader's count a frame goes in: fogd does not re-compensate its own output, so 'comp' is 'other'."""
-    return COUNT_NAMES.get(frame.kind, "other")
-
-
 class Ring:
     """Single-producer, single-consumer ring of frame batches holding at most `capacity` frames."""
 
