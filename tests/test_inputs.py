@@ -166,3 +166,18 @@ def test_model_file_rejects_duplicate_inputs(tmp_path):
     path.write_text(json.dumps(doc))
     with pytest.raises(ModelFileError, match="twice"):
         modelfile.load(path)
+
+
+@settings(max_examples=60, deadline=None)
+@given(steps=st.lists(st.integers(-3, 3), min_size=1, max_size=400),
+       text=st.sampled_from(["temp,lags@10..3000/7,play@2", "lags@5..50/3", "rate@5,lag@60,lag@7.5,temp",
+                             "lag@20,temp,lag@60"]))  # fmt: skip
+def test_a_row_at_a_time_equals_the_batch_bit_for_bit_whatever_the_order_of_lags(steps, text):
+    """update_one (the daemon's row path: a run of lags in one call, the rest one by one) gives the rows
+    inputs_batch gives, in the specs' order."""
+    specs = parse_inputs(text)
+    temps = 20.0 + 0.0625 * np.cumsum(steps)
+    bank = InputBank(specs, RATE_HZ)
+    rows = np.array([bank.update_one(temp) for temp in temps.tolist()])
+    assert np.array_equal(rows, inputs_batch(temps, specs, RATE_HZ))
+    assert bank.count == temps.size

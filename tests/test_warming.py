@@ -3,13 +3,17 @@ bounds the true error of the equilibrium assumption wherever it has cleared; the
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from thermal_runs import RATE_HZ, bank_document
 
 from fogd.core import modelfile
 from fogd.core.compensator import Compensator
-from fogd.core.warming import PROBE_S, TOLERANCE_DPH, replay_rules
+from fogd.core.warming import PROBE_S, TOLERANCE_DPH, WarmingBound, replay_rules
 
 WARMING = 64
 
@@ -68,3 +72,30 @@ def test_pass_and_fallback_without_a_guard_leave_warming_samples_uncompensated(m
     np.testing.assert_allclose(passed.rate_comp_dph[warming], rate_dph[warming], rtol=1e-12, atol=1e-15)
     np.testing.assert_array_equal(passed.comp_dph[~warming], compensated.comp_dph[~warming])
     assert passed.flags.tolist() == compensated.flags.tolist()
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([5.0, 50.0]), st.sampled_from([0.0, 0.002]),
+       st.lists(st.integers(1, 40), min_size=1, max_size=30))
+def test_the_bound_fed_a_check_at_a_time_says_what_it_says_fed_sample_by_sample(model, seed, rate_hz, ramp_cps, reads):
+    """WarmingBound feeds its banks the samples since the last check in one go; reading `row` after every
+    sample makes it feed them one at a time (each sample's own update_one, as it once did): the verdicts, the
+    bound and the rows must not tell the two apart, through the probe, the checks, gaps without a temperature
+    and the clearing (at 50 Hz at rest it clears). `reads`: where the one-at-a-time bound's row is read (odd:
+    after every sample of the run)."""
+    rng = np.random.default_rng(seed)
+    n = int(2.5 * 60.0 * rate_hz)
+    t_s = np.arange(n) / rate_hz
+    temp_c = 20.0 + ramp_cps * t_s + rng.normal(0.0, 0.01, n)
+    temp_c[rng.random(n) < 0.02] = np.nan  # readings missing now and then
+    chunked, stepped = (WarmingBound(model, rate_hz, probe_s=60.0, tolerance_dph=2e-3) for _ in range(2))
+    read_every = [k for k in reads for _ in range(k)]
+    for index, (time_s, temp) in enumerate(zip(t_s.tolist(), temp_c.tolist())):
+        value = None if temp != temp else temp
+        assert chunked.update(time_s, value) == stepped.update(time_s, value), index
+        if read_every[index % len(read_every)] % 2:
+            stepped.row
+        assert chunked.bound_dph == pytest.approx(stepped.bound_dph, rel=1e-12, abs=1e-15) or (
+            math.isinf(chunked.bound_dph) and math.isinf(stepped.bound_dph))
+    assert chunked.row == pytest.approx(stepped.row, rel=1e-12)
+    assert chunked.samples == stepped.samples and chunked.active == stepped.active

@@ -20,8 +20,9 @@ and flags of `process_few` for that sample bit for bit and leaving the same stat
 
 from __future__ import annotations
 
+import functools
 import math
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from typing import Any
 
 import numpy as np
@@ -344,6 +345,12 @@ class ChannelCompensator:
         if len(self.compensators) == 1:  # one channel (a single-axis model, the daemon's usual one): its own row form
             self._one, self._one_bank = next(iter(self.compensators.values())), next(iter(self._banks.values()))
             self.process_row = self._process_one  # type: ignore[method-assign]
+            # (reading, temperature, usable, stale) -> (held, its rate, comp, out, flags): _process_one without
+            # its lists, for a caller that has the one channel's reading at hand (the daemon's row path)
+            self.sample_one: Callable[[float, bool, float, bool], tuple[float, float, float, float, int]] | None = (
+                functools.partial(self._one.sample, self._one_bank.bank))
+        else:
+            self.sample_one = None
 
     @property
     def channels(self) -> tuple[str, ...]:

@@ -204,6 +204,12 @@ class _GaussianPoint:
             return value
         neg_gamma, exp = self.neg_gamma, math.exp
         total = 0.0
+        if len(xs) == 1:  # a kernel on the temperature alone (0.0 + d * d is d * d: the same floats as below)
+            x0 = xs[0]
+            for (c0,), weight in self.terms:
+                d0 = x0 - c0
+                total += weight * exp(neg_gamma * (d0 * d0))
+            return total
         if len(xs) == 2:
             x0, x1 = xs
             for (c0, c1), weight in self.terms:
@@ -310,7 +316,12 @@ class Svr:
 
     def point(self, xs: Sequence[float]) -> float:
         columns, mix = self.kernel_columns, self._mix
-        kernel = self._point(xs if columns is None else [xs[column] for column in columns])
+        if columns is None:
+            kernel = self._point(xs)
+        elif len(columns) == 1:  # (a list comprehension is a call of its own in Python 3.11)
+            kernel = self._point((xs[columns[0]],))
+        else:
+            kernel = self._point([xs[column] for column in columns])
         trend = self._trend_point(xs) if mix is None else self._trend_point([*xs, point_dot(xs, mix)])
         return trend + kernel + self.intercept
 
@@ -442,30 +453,24 @@ class FrozenModel:
 
     def predict_one(self, x: Sequence[float]) -> tuple[float, bool]:
         """`predict` for one row of Python floats: (thermal error in deg/h, True if an input was clamped)."""
-        point = getattr(self.evaluator, "point", None)
-        rows = self.__dict__.get("_rows")
-        if rows is None:
-            rows = self._row_path()
-        if rows is not False:  # a large kernel model: its trend and kernel in a few numpy calls (and the policy)
-            comps, clamped_all = rows.predict_one(x)
-            return comps[0], clamped_all[0]
-        if point is None:  # a plain callable evaluator: the array path
-            comp, clamped = self.predict(np.asarray(x, dtype=np.float64))
-            return float(comp[0]), bool(clamped[0])
+        plan = self.__dict__.get("_one")
+        if plan is None:
+            plan = self._one_plan()
+        if plan is False:
+            return self._predict_one_otherwise(x)
+        point, columns, first, y_mean, y_scale = plan
         x = tuple(x)
         last = self.__dict__.get("_last_point")
         if last is not None and last[0] == x:  # quantised inputs repeat sample after sample: exact reuse
             return last[1]
         clamped = False
         xs = []
-        lows, highs, means, scales = self._point_constants()
-        shifted = self._shifted
-        if shifted:  # clamp_rows, in Python floats (as `_clamp_one`, inline: the daemon's hot path)
-            first = shifted[0]
-            value, low, high = x[first], lows[first], highs[first]
+        shift = 0.0
+        if first is not None:  # clamp_rows, in Python floats (as `_clamp_one`, inline: the daemon's hot path)
+            value, (low, high, _, _, _) = x[first], columns[first]
             shift = (low if value < low else high if value > high else value) - value
-        for column, (value, low, high, mean, scale) in enumerate(zip(x, lows, highs, means, scales)):
-            if shifted and column in shifted:
+        for value, (low, high, mean, scale, moves) in zip(x, columns):
+            if moves:
                 used = value + shift
             else:
                 used = low if value < low else high if value > high else value  # np.clip; NaN stays NaN
@@ -474,10 +479,37 @@ class FrozenModel:
             xs.append((used - mean) / scale)
         if clamped and self._beyond:
             return self.beyond_one(x), True
-        result = (self.y_mean + self.y_scale * point(xs), clamped)
+        result = (y_mean + y_scale * point(xs), clamped)
         if not clamped:  # (NaN inputs count as clamped, so a remembered row never holds one)
             object.__setattr__(self, "_last_point", (x, result))
         return result
+
+    def _one_plan(self) -> tuple | bool:
+        """What predict_one's Python-float path reads, looked up once: the evaluator's `point`, each column's
+        (low, high, mean, scale, moved with the temperature?), the temperature column whose clip moves them,
+        y_mean and y_scale; False for a model that takes another path (`_predict_one_otherwise`)."""
+        point = getattr(self.evaluator, "point", None)
+        rows = self.__dict__.get("_rows")
+        if rows is None:
+            rows = self._row_path()
+        if point is None or rows is not False:
+            plan: tuple | bool = False
+        else:
+            shifted = self._shifted
+            columns = tuple((*bounds, column in shifted) for column, bounds in enumerate(zip(*self._point_constants())))
+            plan = (point, columns, shifted[0] if shifted else None, self.y_mean, self.y_scale)
+        object.__setattr__(self, "_one", plan)
+        return plan
+
+    def _predict_one_otherwise(self, x: Sequence[float]) -> tuple[float, bool]:
+        """predict_one of a large kernel model (its trend and kernel in a few numpy calls, and the policy) or of
+        a plain callable evaluator (the array path)."""
+        rows = self.__dict__.get("_rows")
+        if rows is not False:
+            comps, clamped_all = rows.predict_one(x)
+            return comps[0], clamped_all[0]
+        comp, clamped = self.predict(np.asarray(x, dtype=np.float64))
+        return float(comp[0]), bool(clamped[0])
 
     def _row_path(self) -> StackedModels | bool:
         """For a kernel model too large for a Python loop (POINT_NUMPY_WORK) whose trend has more than

@@ -26,7 +26,7 @@ import numpy as np
 
 from fogd.core.dequantise import DEFAULT_PACE, PACES, Dequantiser, dequantise_batch, smoothed_batch
 from fogd.core.estimator import EstimatorSettings, TempRateEstimator, temp_rate_batch
-from fogd.core.lag import MAX_TAU_S, LagFilter
+from fogd.core.lag import MAX_TAU_S, LagFilter, update_lags_one
 from fogd.core.play import MAX_WIDTH_C, PlayFilter
 
 TEMP = "temp_c"
@@ -373,6 +373,13 @@ class InputBank:
                               for key in _sources(specs) if key is not None}  # fmt: skip
         self.warmup = warmup_samples(specs, rate_hz)
         self.count = 0
+        # update_one's row: the lags of the readings (a run of columns: fogd-train's default bank) in one
+        # update_lags_one call, the inputs before and after them one call each
+        lags = [column for column, (estimator, source) in enumerate(zip(self._estimators, self._sources))
+                if isinstance(estimator, LagFilter) and source is None]  # fmt: skip
+        run = len(lags) > 1 and lags == list(range(lags[0], lags[-1] + 1)) and not self._dequantisers
+        self._lag_run = (self._estimators[: lags[0]], self._estimators[lags[0] : lags[-1] + 1],
+                         self._estimators[lags[-1] + 1 :]) if run else None  # fmt: skip
 
     @property
     def warm(self) -> bool:
@@ -408,6 +415,15 @@ class InputBank:
     def update_one(self, temp_c: float) -> tuple[float, ...]:
         """Feed one finite temperature; its input row as Python floats, the same floats `update` gives."""
         self.count += 1
+        if self._lag_run is not None:
+            before, lags, after = self._lag_run
+            row = []
+            for estimator in before:
+                row.append(temp_c if estimator is None else estimator.update_one(temp_c))
+            row += update_lags_one(lags, temp_c)
+            for estimator in after:
+                row.append(temp_c if estimator is None else estimator.update_one(temp_c))
+            return tuple(row)
         if not self._dequantisers:
             return tuple([temp_c if estimator is None else estimator.update_one(temp_c) for estimator in self._estimators])
         sources = {None: temp_c} | {key: dq.update_one(temp_c) for key, dq in self._dequantisers.items()}

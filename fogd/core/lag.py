@@ -20,6 +20,7 @@ RSS), whatever its model.
 from __future__ import annotations
 
 import math
+from typing import Sequence
 
 import numpy as np
 
@@ -90,6 +91,18 @@ class LagFilter:
         lagged = state + self._gain * temp_c
         self._state = self._keep * lagged
         return lagged
+
+
+def update_lags_one(filters: Sequence[LagFilter], temp_c: float) -> list[float]:
+    """`update_one` of each filter with the same sample (an input bank's lags), in one call: the same floats,
+    without a Python call per lag (on a dedicated box each frame's calls run cold, fogd.core.inputs)."""
+    out = []
+    for lag in filters:
+        state = lag._state
+        lagged = (lag._keep * temp_c if state is None else state) + lag._gain * temp_c
+        lag._state = lag._keep * lagged
+        out.append(lagged)
+    return out
 
 
 def lag_batch(temp_c: np.ndarray, tau_s: float, rate_hz: float) -> np.ndarray:

@@ -51,41 +51,70 @@ class WarmingBound:
         self._probe = TempHistory(rate_hz, span_s=2 * self.probe_s, tail_s=0.0)  # its block means: O(1) a sample
         self._assumed = InputBank(model.inputs, rate_hz)  # what the compensator runs: equilibrium at the first
         self._banks: list[InputBank] = []  # the ramp scenarios, once the probe is full
-        self.row: tuple[float, ...] | None = None  # the assumed inputs of the newest sample
+        self._row: tuple[float, ...] | None = None  # the assumed inputs of the newest sample fed to the banks
         self._every = max(1, int(round(self.rate_hz / CHECKS_HZ)))
         self._warming = True
+        # Valid samples not yet fed to the probe and the banks: they are fed a check's worth at a time, in one
+        # InputBank.update (the same floats as one update_one each), not a Python call chain per sample.
+        self._pending_t_s: list[float] = []
+        self._pending_c: list[float] = []
+        self._t0_s: float | None = None
+
+    @property
+    def row(self) -> tuple[float, ...] | None:
+        """The assumed inputs of the newest sample (None before the first temperature)."""
+        self._feed()
+        return self._row
 
     def update(self, t_s: float, temp_c: float | None) -> bool:
         """One sample (sample time `t_s`, its valid temperature or None); True while it is WARMING."""
         if not self.active:
             return False
         if temp_c is None or temp_c != temp_c:
-            if self.row is None:  # before the first temperature: WARMUP's, not an assumption yet
+            if self._t0_s is None:  # before the first temperature: WARMUP's, not an assumption yet
                 return False
             self.samples += 1
             return True
         self.samples += 1
-        self.row = self._assumed.update_one(temp_c)
+        if self._t0_s is None:
+            self._t0_s = t_s
+        self._pending_t_s.append(t_s)
+        self._pending_c.append(temp_c)
         if not self._banks:
-            self._probe.add(t_s, temp_c)
-            if t_s - self._probe.first[0] >= self.probe_s:
+            if t_s - self._t0_s >= self.probe_s:
+                self._feed()
                 self._start()
+            elif len(self._pending_c) >= self._every:
+                self._feed()
             return True
-        rows = [bank.update_one(temp_c) for bank in self._banks]
         if self.samples % self._every == 0:
+            self._feed()
             predict = self.model.predict_one
-            assumed = predict(self.row)[0]
-            self.bound_dph = max(abs(predict(row)[0] - assumed) for row in rows)
+            assumed = predict(self._row)[0]
+            self.bound_dph = max(abs(predict(row)[0] - assumed) for row in self._rows)
             self._warming = self.bound_dph > self.tolerance_dph
             if not self._warming:
                 self.active = False
                 self._banks = []
         return self._warming
 
+    def _feed(self) -> None:
+        """The pending samples into the probe (while it fills) and every bank; the newest rows kept."""
+        temps = self._pending_c
+        if not temps:
+            return
+        if self._probe is not None:
+            self._probe.extend(self._pending_t_s, temps)
+        chunk = np.array(temps, dtype=np.float64)
+        self._row = tuple(self._assumed.update(chunk)[-1].tolist())
+        self._rows = [tuple(bank.update(chunk)[-1].tolist()) for bank in self._banks]
+        self._pending_t_s, self._pending_c = [], []
+
     def fallback_dph(self) -> float | None:
         """The model's domain-guard fallback at the newest assumed inputs (None: it has no guard)."""
         guard = self.model.meta.get("domain_guard")
-        return None if guard is None or self.row is None else guard.fallback.predict_one(self.row)[0]
+        row = self.row
+        return None if guard is None or row is None else guard.fallback.predict_one(row)[0]
 
     def for_model(self, model: FrozenModel, history: TempHistory) -> WarmingBound:
         """The bound of another model (a reload while warming) over the same start: fed the history since it."""

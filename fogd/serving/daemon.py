@@ -245,6 +245,8 @@ class Daemon:
         self.rate_hz = rate_hz
         self.axis = axis
         self._names = self.plan.covered
+        sources = self.plan.sources  # one gyro channel (the usual daemon): its axis, for the row path
+        self._one_axis = sources[0][1] if len(sources) == 1 and not sources[0][0] else None
         self.temp_stale_s = temp_stale_s
         self.status_interval_s = status_interval_s
         self.duration_s = duration_s
@@ -484,7 +486,8 @@ class Daemon:
     def take_inline(self, frames: list[Frame], t_rx_s: float) -> bool:
         """The reader's offer of one read's frames: hand them on here, on its thread, when they are few, none
         wait in the ring before them and the loop is not busy; False: they go into the ring."""
-        if len(frames) > INLINE_MAX or len(self.ring) or not self._handing_on.acquire(blocking=False):
+        ring = self.reader.ring  # (its counters, not len(): two calls a frame fewer on the reader's path)
+        if len(frames) > INLINE_MAX or ring.pushed != ring.popped or not self._handing_on.acquire(False):
             return False
         try:  # (only the reader pushes into the ring: it is still empty)
             self._hand_on(frames, [t_rx_s] * len(frames))
@@ -505,8 +508,12 @@ class Daemon:
     def _hand_on(self, frames: list[Frame], t_rx_s: list[float]) -> None:
         """Compensate, encode and submit to the writer one batch (the caller holds `_handing_on`)."""
         self.counters.records_popped += len(frames)
-        try:
-            batch = self.compensate(frames, t_rx_s)
+        thermal = self.thermal
+        try:  # (a few frames once started go straight to the row path: `compensate`'s choice, a call less)
+            if len(frames) <= SCALAR_CHUNK and (thermal is None or not thermal.pending):
+                batch = self._compensate_rows(frames, t_rx_s)
+            else:
+                batch = self.compensate(frames, t_rx_s)
         except Exception as error:  # a bug must cost the batch (counted), never the daemon
             self._count_unencodable(len(frames), error)
             return
@@ -575,6 +582,8 @@ class Daemon:
         hold = self.temperature
         held_c, held_rx_s = hold.temp_c, hold.rx_s
         stale_s, row, read = self.temp_stale_s, self.compensator.process_row, self._read
+        axis = self._one_axis
+        sample_one = self.compensator.sample_one if axis is not None else None
         rows, device_s, results = [], [], []
         out_of_domain = clamped = 0
         for index, frame in enumerate(frames):
@@ -583,11 +592,18 @@ class Daemon:
                 held_c, held_rx_s = frame.temp_c, t_rx_s[index]
             if kind not in RATE_KINDS:
                 continue
-            values, usable = read(frame)
-            result = row(values, usable, held_c, t_rx_s[index] - held_rx_s > stale_s)
+            stale = t_rx_s[index] - held_rx_s > stale_s
+            if sample_one is not None:  # process_row's own sample, without _read's and its lists on the way
+                reading = frame.rate_dph[axis]
+                held, temp_rate, comp, out, flags = sample_one(reading, held_c, frame.axis_valid[axis] and frame.axis_present[axis],
+                                                              stale)  # fmt: skip
+                result = (held, temp_rate, [comp], [out], [flags])
+            else:
+                values, usable = read(frame)
+                reading, result = values[0], row(values, usable, held_c, stale)
             rows.append(index)
             device_s.append(frame.t_s)
-            results.append((values[0], result))
+            results.append((reading, result))
             any_flags = 0
             for flags in result[4]:
                 any_flags |= flags

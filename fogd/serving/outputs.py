@@ -118,8 +118,9 @@ class Formatter:
     def _same(self, batch: OutputBatch) -> list[bytes]:
         """Every input frame, rate frames re-encoded with the compensated rate and a fresh CRC."""
         axis, reencode, frames = self.axis, self.protocol.reencode, batch.frames
+        rates_comp = batch.comp.rate_comp_dph  # (_values inline: the daemon's few-frame batches are lists)
         pieces = [frame.raw for frame in frames]
-        for row, rate_comp in zip(batch.rate_rows, _values(batch.comp.rate_comp_dph)):
+        for row, rate_comp in zip(batch.rate_rows, rates_comp if isinstance(rates_comp, list) else rates_comp.tolist()):
             frame = frames[row]
             rates = list(frame.rate_dph)
             rates[axis] = rate_comp
@@ -638,28 +639,28 @@ class Writer:
                     size = len(self._header)
                     chunk = Chunk(self._header + chunk.data, [end + size for end in chunk.frame_ends], chunk.begun)
         if not self.sink.blocking and self._queued == self._done and not self._tail and self._running:
-            rest = self._write_now(chunk)
-            if rest is None:
-                return
-            chunk = rest
+            # one non-blocking write on the caller's thread while the writer thread is idle (so the counters
+            # have one writer at a time); what the consumer did not take goes to the queue
+            try:
+                written = os.write(self.sink.fd, chunk.data)
+            except OSError:  # would block, or an error the writer thread logs and counts by its own policy
+                written = -1
+            if written >= 0:
+                self._failing_since_s = None
+                if written == len(chunk.data):  # (inline: the daemon's every frame when the consumer keeps up)
+                    self.counters.frames_written += len(chunk.frame_ends)
+                    return
+                chunk = self._rest(chunk, written)
         try:
             self._queue.put_nowait(chunk)
             self._queued += 1
         except queue.Full:  # (never the rest of a direct write: the writer was idle, the queue empty)
             self.counters.frames_dropped_full += len(chunk.frame_ends)
 
-    def _write_now(self, chunk: Chunk) -> Chunk | None:
-        """One non-blocking write on the caller's thread while the writer thread is idle (so the counters have
-        one writer at a time); what the consumer did not take, for the queue, or None."""
-        try:
-            written = os.write(self.sink.fd, chunk.data)
-        except OSError:  # would block, or an error the writer thread logs and counts by its own policy
-            return chunk
+    def _rest(self, chunk: Chunk, written: int) -> Chunk:
+        """What is left of `chunk` after a write took its first `written` bytes (its whole frames counted)."""
         complete = bisect.bisect_right(chunk.frame_ends, written)
         self.counters.frames_written += complete
-        self._failing_since_s = None
-        if written == len(chunk.data):
-            return None
         begun = written > (chunk.frame_ends[complete - 1] if complete else 0)
         return Chunk(chunk.data[written:], [end - written for end in chunk.frame_ends[complete:]], begun)
 

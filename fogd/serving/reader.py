@@ -40,7 +40,7 @@ import serial
 
 from fogd.errors import DeviceError
 from fogd.protocols.lexer import Lexer
-from fogd.serving.ring import KIND_NAMES, Ring, kind_name
+from fogd.serving.ring import COUNT_NAMES, KIND_NAMES, Ring
 
 log = logging.getLogger("fogd.reader")
 
@@ -163,9 +163,9 @@ class Reader:
             self._push(frames, t_rx_s)
 
     def _push(self, frames: list, t_rx_s: float) -> None:
-        frames_in = self.counters.frames_in
+        frames_in, names = self.counters.frames_in, COUNT_NAMES
         for frame in frames:
-            frames_in[kind_name(frame)] += 1
+            frames_in[names.get(frame.kind, "other")] += 1  # 'comp' is 'other': fogd does not re-compensate its own output
         inline = self.inline
         if inline is not None and inline(frames, t_rx_s):
             return

@@ -25,11 +25,6 @@ RATE_KINDS = frozenset(("imu", "rate"))  # frames carrying a gyro rate the daemo
 TEMP_KINDS = frozenset(("imu", "temp"))  # frames whose temperature the daemon holds
 
 
-def kind_name(frame: Frame) -> str:
-    """The reader's count a frame goes in: fogd does not re-compensate its own output, so 'comp' is 'other'."""
-    return COUNT_NAMES.get(frame.kind, "other")
-
-
 class Ring:
     """Single-producer, single-consumer ring of frame batches holding at most `capacity` frames."""
 
@@ -39,17 +34,17 @@ class Ring:
         self.capacity = capacity
         self._queue: queue.SimpleQueue[tuple[float, list[Frame]]] = queue.SimpleQueue()
         self._taken: deque[tuple[float, list[Frame]]] = deque()  # off the queue, not yet popped (consumer only)
-        self._pushed = 0  # frames ever stored (written by the producer only)
-        self._popped = 0  # frames ever popped (written by the consumer only)
+        self.pushed = 0  # frames ever stored (written by the producer only): empty while pushed == popped
+        self.popped = 0  # frames ever popped (written by the consumer only)
         self.overruns = 0  # frames dropped because the ring was full (producer only)
 
     def __len__(self) -> int:
-        return self._pushed - self._popped
+        return self.pushed - self.popped
 
     def push(self, frames: list[Frame], t_rx_s: float) -> int:
         """Append as many of one read's `frames` as fit; the rest is dropped and counted. Returns the number
         stored. `t_rx_s` is the monotonic time the read that completed them returned."""
-        free = self.capacity - (self._pushed - self._popped)
+        free = self.capacity - (self.pushed - self.popped)
         count = len(frames)
         if count > free:
             self.overruns += count - max(free, 0)
@@ -57,7 +52,7 @@ class Ring:
             frames = frames[:count]
         if count == 0:
             return 0
-        self._pushed += count  # counted before it is visible: a pop never makes the length negative
+        self.pushed += count  # counted before it is visible: a pop never makes the length negative
         self._queue.put((t_rx_s, frames))
         return count
 
@@ -82,7 +77,7 @@ class Ring:
         taken, pending = self._taken, self._queue
         if len(taken) == 1 and len(taken[0][1]) <= limit and pending.empty():  # the usual pop: one read's
             t_rx_s, batch = taken.popleft()  # frames, waited for, nothing behind them: handed on as they are
-            self._popped += len(batch)
+            self.popped += len(batch)
             return batch, [t_rx_s] * len(batch)
         frames: list[Frame] = []
         times: list[float] = []
@@ -99,5 +94,5 @@ class Ring:
                 batch = batch[:room]
             frames += batch
             times += [t_rx_s] * len(batch)
-        self._popped += len(frames)
+        self.popped += len(frames)
         return frames, times

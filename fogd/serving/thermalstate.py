@@ -41,8 +41,9 @@ VERSION = 1
 MAX_STATE_BYTES = 4 << 20  # 15,000 block means take about 300 kB
 MAX_POINTS = 200_000
 SAVE_EVERY_S = 5.0
+FLUSH_SAMPLES = 256  # observed temperatures gathered before they go into the history (see Thermal)
 MIN_MEMORY_S = 600.0  # a model without lags still has its eq. 16 windows and play: a gap up to this is bridged
-_TEMP_INVALID = int(Flag.TEMP_INVALID)
+_TEMP_INVALID, _WARMING = int(Flag.TEMP_INVALID), int(Flag.WARMING)
 
 
 class StateFileError(ValueError):
@@ -169,7 +170,11 @@ class Thermal:
         self.device = device
         self.warming_mode = warming
         self.tolerance_dph = tolerance_dph
-        self.history = TempHistory(rate_hz, span_s=span_s(models))
+        self._history = TempHistory(rate_hz, span_s=span_s(models))
+        # valid temperatures not yet in the history: added FLUSH_SAMPLES at a time (on a dedicated box a call
+        # chain per frame runs cold; a batch runs warm), and before anything reads the history
+        self._pending_t_s: list[float] = []
+        self._pending_c: list[float] = []
         self.counters = ThermalCounters()
         self.pending = True  # before the first valid temperature: restore or cold start then
         self.clock = ""  # "device" or "wall", from the first sample
@@ -177,6 +182,18 @@ class Thermal:
         self.bound: WarmingBound | None = None
         self.started = ""  # how this run started, for the status
         self._saving: threading.Thread | None = None
+
+    @property
+    def history(self) -> TempHistory:
+        """The temperature history, every observed sample in it (read it on the thread that observes, or while
+        it is held off: the daemon's `_handing_on`)."""
+        self._flush()
+        return self._history
+
+    def _flush(self) -> None:
+        if self._pending_c:
+            self._history.extend(self._pending_t_s, self._pending_c)
+            self._pending_t_s, self._pending_c = [], []
 
     # -- start ------------------------------------------------------------------------------------------------
     def start(self, t_s: float, device_clock: bool, temp_c: float, compensator: ChannelCompensator) -> None:
@@ -232,7 +249,8 @@ class Thermal:
         """After a batch: its valid temperatures into the history, and while warming the WARMING flag and the
         warming mode on every channel's samples (`comp`: the first channel's columns, `comps` every channel's).
         Returns how many samples are WARMING."""
-        offset_s, add, bound = self.offset_s, self.history.add, self.bound
+        offset_s, bound = self.offset_s, self.bound
+        add_t_s, add_c = self._pending_t_s.append, self._pending_c.append
         temps, flags = comp.temp_c, comp.flags
         warming: list[tuple[int, float | None]] = []
         fallback = self.warming_mode == "fallback"
@@ -240,17 +258,24 @@ class Thermal:
             temp_c = temps[index]
             valid = not int(flags[index]) & _TEMP_INVALID and temp_c == temp_c
             if valid:
-                add(t_s + offset_s, temp_c)
+                add_t_s(t_s + offset_s)
+                add_c(temp_c)
             if bound is not None and bound.update(t_s + offset_s, temp_c if valid else None):
                 warming.append((index, bound.fallback_dph() if fallback else None))
+        if len(self._pending_c) >= FLUSH_SAMPLES:
+            self._flush()
         if bound is not None and not bound.active:
             log.warning("thermal state: WARMING cleared after %d samples (bound %.2g deg/h; start rate %+.2g "
                         "+- %.2g C/s)", bound.samples, bound.bound_dph, bound.start_rate_cps, bound.rate_margin_cps)  # fmt: skip
             self.bound = None
-        if warming:
-            first = comps[next(iter(comps))] if comps is not None else comp
-            apply_mode([first, *(column for column in (comps or {}).values() if column is not first)], warming,
-                       self.warming_mode)  # fmt: skip
+        if warming and comps is None and self.warming_mode == "compensate":  # apply_mode's 'compensate': the flag
+            for index, _ in warming:
+                flags[index] = int(flags[index]) | _WARMING
+        elif warming and comps is None:
+            apply_mode([comp], warming, self.warming_mode)
+        elif warming:
+            first = comps[next(iter(comps))]
+            apply_mode([first, *(column for column in comps.values() if column is not first)], warming, self.warming_mode)
         return len(warming)
 
     # -- reload -----------------------------------------------------------------------------------------------
@@ -300,5 +325,5 @@ class Thermal:
         return {
             "started": self.started, "warming": bound is not None, "warming_mode": self.warming_mode,
             "bound_dph": None if bound is None or math.isinf(bound.bound_dph) else bound.bound_dph,
-            "history_points": len(self.history), "state_file": self.path, **vars(self.counters),
+            "history_points": len(self._history), "state_file": self.path, **vars(self.counters),
         }  # fmt: skip
