@@ -30,6 +30,15 @@ the paired rule takes the top rung, 1.00-1.08x. A rung no better than a simpler 
 spread could otherwise take a rung as good as linear whose differences from the best are merely noisier. Only
 the chosen rung is refitted on all the runs.
 
+The paired rule climbs more readily, and it climbs wrongly where the folds cannot see the loss: on the 200 Hz
+quick start (tactical noise, bench_train.py, seed 1) the lag bank scored 2.42e-2 deg/h against the static curve's
+2.50e-2 (paired error 4.5e-4; the best rung's own spread, 1.1e-3, would have kept the static curve) and left
+3.02e-2 on paper-test where the static curve leaves 2.47e-2 and linear 2.52e-2 (floor 2.38e-2); seed 11 kept the
+static curve (2.25e-2 against 2.32e-2; paper-test 2.80e-2, the lag bank 3.27e-2). The lag bank's error there is
+a slope in temperature (+0.031 deg/h at 0 C to -0.043 at 28 C) that stretches of the same monotone runs, where
+temperature stands for time, do not show. The trade measured: 1.27x the floor against 1.03x there, 1.08x against
+11.25x on housing_tau_s=3000.
+
 Why one stretch of one run per fold: the served model is fitted on every run; a fold should lack as little
 of them as it can. Holding out the k-th stretch of every run together removed the same phase of each run at
 once: on the quick start's mirrored heating and cooling runs the last fold held out both ends of the
