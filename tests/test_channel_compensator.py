@@ -256,25 +256,31 @@ def test_process_row_is_process_few_of_one_sample(alone, guard, chunks, bad_temp
     assert guard is None or fallbacks == {True, False}, "the guard sends some rows (not all) to its fallback"
 
 
-def test_process_row_goes_on_with_a_bank_handed_over():
-    """A reload hands the running input banks and held temperatures to a new compensator (serving.daemon's
-    _carry_state): process_row must go on from them, not from the new compensator's own fresh banks."""
+@pytest.mark.parametrize("alone", [None, "rate_y_dph"])
+def test_process_row_and_sample_one_go_on_with_a_bank_handed_over(alone):
+    """A reload hands the running input banks and held temperatures to a new compensator (carry_state_from,
+    serving.daemon's reload): process_row, and a one-channel compensator's sample_one (the daemon's row path),
+    must go on from them, not from the new compensator's own fresh banks."""
     import copy
 
+    chosen = models() if alone is None else {alone: models()[alone]}
     run = imu_run(0, [], [])
-    names = list(models())
+    names = list(chosen)
     rows = [([run.channels[n][i] for n in names], [True] * len(names), run.temp_c[i]) for i in range(ROWS)]
-    running = ChannelCompensator(models(), RATE_HZ)
+    running = ChannelCompensator(chosen, RATE_HZ)
     for values, usable, temp in rows[:300]:
         running.process_row(values, usable, temp, False)
     same = copy.deepcopy(running)
-    new = ChannelCompensator(models(), RATE_HZ)
-    for inputs, shared in new._banks.items():
-        shared.bank = running._banks[inputs].bank
-    for channel, compensator in new.compensators.items():
-        compensator._held_temp_c = running.compensators[channel]._held_temp_c
+    new = ChannelCompensator(chosen, RATE_HZ)
+    assert new.carry_state_from(running)
     for values, usable, temp in rows[300:320]:
         assert repr(new.process_row(values, usable, temp, False)) == repr(same.process_row(values, usable, temp, False))
+    if alone is not None:
+        values, usable, temp = rows[320]
+        got = new.sample_one(values[0], temp, usable[0], False)
+        want = same.process_row(values, usable, temp, False)
+        assert repr(got) == repr((want[0], want[1], want[2][0], want[3][0], want[4][0]))
+
 
 
 @pytest.mark.parametrize("alone", [None, "rate_y_dph"])

@@ -347,10 +347,26 @@ class ChannelCompensator:
             self.process_row = self._process_one  # type: ignore[method-assign]
             # (reading, temperature, usable, stale) -> (held, its rate, comp, out, flags): _process_one without
             # its lists, for a caller that has the one channel's reading at hand (the daemon's row path)
-            self.sample_one: Callable[[float, bool, float, bool], tuple[float, float, float, float, int]] | None = (
+            self.sample_one: Callable[[float, float, bool, bool], tuple[float, float, float, float, int]] | None = (
                 functools.partial(self._one.sample, self._one_bank.bank))
         else:
             self.sample_one = None
+
+    def carry_state_from(self, old: ChannelCompensator) -> bool:
+        """Go on from `old`'s input banks and held temperatures (a reload that keeps every channel's inputs:
+        the same channels with the same input configurations group into the same banks); False, and nothing
+        taken, when they differ."""
+        if self.channels != old.channels or any(
+            self.compensators[channel].model.inputs != old.compensators[channel].model.inputs for channel in self.channels
+        ):
+            return False
+        for inputs, shared in self._banks.items():
+            shared.bank = old._banks[inputs].bank
+        for channel, compensator in self.compensators.items():
+            compensator._held_temp_c = old.compensators[channel]._held_temp_c
+        if self.sample_one is not None:  # bound to the bank it now runs on
+            self.sample_one = functools.partial(self._one.sample, self._one_bank.bank)
+        return True
 
     @property
     def channels(self) -> tuple[str, ...]:

@@ -475,7 +475,7 @@ class Daemon:
         self.status_interval_s = reload.status_interval_s
         model, models = reload.model, as_models(reload.model)
         new = reload.compensator or self._compensator(models, self.rate_hz)
-        kept = _carry_state(self.compensator, new)
+        kept = new.carry_state_from(self.compensator)
         state = "kept (same inputs)" if kept else "reset (inputs differ): warm-up again"
         if self.thermal is not None:  # the history primes new inputs (serving.thermalstate)
             state = self.thermal.reloaded([models[c] for c in self.plan.covered], new, prime=not kept)
@@ -850,21 +850,6 @@ def _or(values: tuple[int, ...]) -> int:
     for value in values:
         result |= value
     return result
-
-
-def _carry_state(old: ChannelCompensator, new: ChannelCompensator) -> bool:
-    """Hand the estimator banks and held temperatures over when every channel keeps its inputs (the same
-    channels with the same input configurations group into the same banks); False when they differ."""
-    if new.channels != old.channels or any(
-        new.compensators[channel].model.inputs != old.compensators[channel].model.inputs for channel in new.channels
-    ):
-        return False
-    # core.channels has no public hand-over of its state: carry each shared bank and each held temperature
-    for inputs, shared in new._banks.items():
-        shared.bank = old._banks[inputs].bank
-    for channel, compensator in new.compensators.items():
-        compensator._held_temp_c = old.compensators[channel]._held_temp_c
-    return True
 
 
 def _shares_text(shares: dict[str, float]) -> str:
