@@ -52,6 +52,7 @@ class WarmingBound:
         self._assumed = InputBank(model.inputs, rate_hz)  # what the compensator runs: equilibrium at the first
         self._banks: list[InputBank] = []  # the ramp scenarios, once the probe is full
         self._row: tuple[float, ...] | None = None  # the assumed inputs of the newest sample fed to the banks
+        self._rows: list[tuple[float, ...]] = []  # the scenario banks' inputs of that sample
         self._every = max(1, int(round(self.rate_hz / CHECKS_HZ)))
         self._warming = True
         # Valid samples not yet fed to the probe and the banks: they are fed a check's worth at a time, in one
