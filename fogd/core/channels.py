@@ -345,12 +345,15 @@ class ChannelCompensator:
         if len(self.compensators) == 1:  # one channel (a single-axis model, the daemon's usual one): its own row form
             self._one, self._one_bank = next(iter(self.compensators.values())), next(iter(self._banks.values()))
             self.process_row = self._process_one  # type: ignore[method-assign]
-            # (reading, temperature, usable, stale) -> (held, its rate, comp, out, flags): _process_one without
-            # its lists, for a caller that has the one channel's reading at hand (the daemon's row path)
-            self.sample_one: Callable[[float, float, bool, bool], tuple[float, float, float, float, int]] | None = (
-                functools.partial(self._one.sample, self._one_bank.bank))
-        else:
-            self.sample_one = None
+        # (reading, temperature, usable, stale) -> (held, its rate, comp, out, flags): _process_one without its
+        # lists, for a caller with the one channel's reading at hand (the daemon's row path); None: several channels
+        self.sample_one: Callable[[float, float, bool, bool], tuple[float, float, float, float, int]] | None = None
+        self._bind_sample_one()
+
+    def _bind_sample_one(self) -> None:
+        """`sample_one` on the one channel's bank as it is now (a hand-over replaces the bank)."""
+        if len(self.compensators) == 1:
+            self.sample_one = functools.partial(self._one.sample, self._one_bank.bank)
 
     def carry_state_from(self, old: ChannelCompensator) -> bool:
         """Go on from `old`'s input banks and held temperatures (a reload that keeps every channel's inputs:
@@ -364,8 +367,7 @@ class ChannelCompensator:
             shared.bank = old._banks[inputs].bank
         for channel, compensator in self.compensators.items():
             compensator._held_temp_c = old.compensators[channel]._held_temp_c
-        if self.sample_one is not None:  # bound to the bank it now runs on
-            self.sample_one = functools.partial(self._one.sample, self._one_bank.bank)
+        self._bind_sample_one()
         return True
 
     @property

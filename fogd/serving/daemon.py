@@ -508,12 +508,8 @@ class Daemon:
     def _hand_on(self, frames: list[Frame], t_rx_s: list[float]) -> None:
         """Compensate, encode and submit to the writer one batch (the caller holds `_handing_on`)."""
         self.counters.records_popped += len(frames)
-        thermal = self.thermal
-        try:  # (a few frames once started go straight to the row path: `compensate`'s choice, a call less)
-            if len(frames) <= SCALAR_CHUNK and (thermal is None or not thermal.pending):
-                batch = self._compensate_rows(frames, t_rx_s)
-            else:
-                batch = self.compensate(frames, t_rx_s)
+        try:
+            batch = self.compensate(frames, t_rx_s)
         except Exception as error:  # a bug must cost the batch (counted), never the daemon
             self._count_unencodable(len(frames), error)
             return

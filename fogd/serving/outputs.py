@@ -118,9 +118,8 @@ class Formatter:
     def _same(self, batch: OutputBatch) -> list[bytes]:
         """Every input frame, rate frames re-encoded with the compensated rate and a fresh CRC."""
         axis, reencode, frames = self.axis, self.protocol.reencode, batch.frames
-        rates_comp = batch.comp.rate_comp_dph  # (_values inline: the daemon's few-frame batches are lists)
         pieces = [frame.raw for frame in frames]
-        for row, rate_comp in zip(batch.rate_rows, rates_comp if isinstance(rates_comp, list) else rates_comp.tolist()):
+        for row, rate_comp in zip(batch.rate_rows, _values(batch.comp.rate_comp_dph)):
             frame = frames[row]
             rates = list(frame.rate_dph)
             rates[axis] = rate_comp

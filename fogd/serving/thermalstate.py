@@ -43,7 +43,7 @@ MAX_POINTS = 200_000
 SAVE_EVERY_S = 5.0
 FLUSH_SAMPLES = 256  # observed temperatures gathered before they go into the history (see Thermal)
 MIN_MEMORY_S = 600.0  # a model without lags still has its eq. 16 windows and play: a gap up to this is bridged
-_TEMP_INVALID, _WARMING = int(Flag.TEMP_INVALID), int(Flag.WARMING)
+_TEMP_INVALID = int(Flag.TEMP_INVALID)
 
 
 class StateFileError(ValueError):
@@ -268,14 +268,8 @@ class Thermal:
             log.warning("thermal state: WARMING cleared after %d samples (bound %.2g deg/h; start rate %+.2g "
                         "+- %.2g C/s)", bound.samples, bound.bound_dph, bound.start_rate_cps, bound.rate_margin_cps)  # fmt: skip
             self.bound = None
-        if warming and comps is None and self.warming_mode == "compensate":  # apply_mode's 'compensate': the flag
-            for index, _ in warming:
-                flags[index] = int(flags[index]) | _WARMING
-        elif warming and comps is None:
-            apply_mode([comp], warming, self.warming_mode)
-        elif warming:
-            first = comps[next(iter(comps))]
-            apply_mode([first, *(column for column in comps.values() if column is not first)], warming, self.warming_mode)
+        if warming:  # (every channel's columns, the first channel's first: the one the bound was computed for)
+            apply_mode([comp] if comps is None else list(comps.values()), warming, self.warming_mode)
         return len(warming)
 
     # -- reload -----------------------------------------------------------------------------------------------
