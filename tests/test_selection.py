@@ -12,11 +12,15 @@ from fogd.calibration.selection import (
     choose,
     input_sets,
     nested_rmse,
+    outside_policy,
     select,
+    served,
     table_lines,
 )
-from fogd.calibration.training import TrainConfig, prepare
-from fogd.core.inputs import DEFAULT_INPUTS_TEXT, default_inputs, dequantised, parse_inputs
+from fogd.calibration.training import TrainConfig, options_for_inputs, prepare, train
+from fogd.core import modelfile
+from fogd.core.inputs import DEFAULT_INPUTS_TEXT, default_inputs, dequantised, parse_inputs, shifted_columns
+from fogd.core.outside_range import POLICIES, OutsideRange
 from fogd.core.runio import Run
 
 
@@ -87,12 +91,18 @@ def test_nested_score_predicts_each_run_from_the_others_with_clamped_inputs():
     error = data.rate_dph - reference
 
     def held_out(clamp: bool) -> float:
-        """Least squares with one offset per training run; drift about each held-out run's own mean."""
+        """Least squares with one offset per training run, without the inputs that barely move within the
+        training runs (their squares about the run means under one row at their overall spread: a ramp's rate,
+        which the offsets already carry); drift about each held-out run's own mean."""
         squared = []
         for run in range(3):
             train, test = data.groups != run, data.groups == run
             dummies = (data.groups[train][:, None] == np.unique(data.groups[train])).astype(float)
-            coef = np.linalg.lstsq(np.c_[dummies, data.x[train]], error[train], rcond=None)[0][dummies.shape[1]:]
+            x = data.x[train]
+            within = sum(((x[g] - x[g].mean(axis=0)) ** 2).sum(axis=0) for g in dummies.T.astype(bool))
+            moves = within > x.var(axis=0)
+            coef = np.zeros(x.shape[1])
+            coef[moves] = np.linalg.lstsq(np.c_[dummies, x[:, moves]], error[train], rcond=None)[0][dummies.shape[1]:]
             x_test = data.x[test]
             if clamp:
                 x_test = np.clip(x_test, data.x[train].min(axis=0), data.x[train].max(axis=0))
@@ -118,3 +128,26 @@ def test_auto_on_a_whole_degree_sensor_scores_the_dequantised_default():
     assert candidates and all(spec.dequantise_c == 1.0 for c in candidates for spec in c.inputs)
     assert {c.inputs for c in candidates} == {dequantised(parse_inputs(DEFAULT_INPUTS_TEXT), 1.0)}
     assert chosen in candidates
+
+
+@pytest.mark.parametrize("policy", POLICIES)
+def test_held_out_rows_beyond_the_range_are_served_as_the_daemon_serves_them(policy):
+    """The ladder scores each fold as the model will be served: a row outside the training rows' range by the
+    model file's `outside_range` policy, computed here as fogd.core.frozen computes it from the saved model."""
+    runs = [synthetic_run("up.csv", 1, True), synthetic_run("down.csv", 2, False)]
+    specs = parse_inputs("temp,lags@100..1000/3,play@1")
+    options = options_for_inputs(FitOptions(particles=4, iterations=2, progress=False), specs)
+    trained = train(runs, TrainConfig(method="pso-svr", inputs=specs, fit=options, domain_guard=False, outside=policy))
+    x = trained.data.x
+    beyond = np.concatenate([x[:40] + [45.0, 40.0, 30.0, 20.0, 0.0], x[-40:] - [25.0, 3.0, 2.0, 1.0, 0.0],
+                             x[:40] + [0.0, 0.0, 0.0, 0.0, 2.5]])  # fmt: skip
+    model = modelfile.from_document(trained.document)
+    expected, clamped = model.predict(beyond)
+    assert clamped.all()
+    low, high = (np.asarray(trained.document["domain"][key]) for key in ("min", "max"))
+    fitted = trained.fitted
+    served_by = outside_policy(policy, fitted, x, trained.error_dph, trained.data.groups, options)
+    got = served(fitted, beyond, low, high, shifted_columns(specs), served_by)
+    assert got == pytest.approx(expected, rel=1e-9, abs=1e-9)
+    if policy != "clamp":  # the policy matters here: the clamp alone is another model beyond the range
+        assert not np.allclose(got, served(fitted, beyond, low, high, shifted_columns(specs), OutsideRange("clamp")))

@@ -52,6 +52,7 @@ from fogd.core.inputs import (
     parse_inputs,
     shifted_columns,
 )
+from fogd.core.outside_range import LINEAR_POLICIES, OutsideRange
 from fogd.errors import InputError
 
 # rbf-nn is left out: its Gaussian units have no trend underneath and decay to a constant away from their
@@ -167,19 +168,53 @@ def nested_rmse(method: str, data: TrainingSet, error_dph: np.ndarray, options: 
 
 
 def nested_residual(method: str, data: TrainingSet, error_dph: np.ndarray, options: FitOptions,
-                    shifted: tuple[int, ...], splits: list) -> np.ndarray:  # fmt: skip
-    """Each test row's held-out residual (deg/h) over `splits`, which must test every row once (`nested_rmse`)."""
+                    shifted: tuple[int, ...], splits: list, outside: str = "clamp") -> np.ndarray:  # fmt: skip
+    """Each test row's held-out residual (deg/h) over `splits`, which must test every row once (`nested_rmse`),
+    rows beyond the training rows' range served by the policy `outside` (fogd.core.outside_range) as the daemon
+    serves a model beyond its calibrated range."""
     residual = np.full_like(error_dph, np.nan)
     inner = dataclasses.replace(options, progress=False)
     for train_rows, test_rows in splits:
         x_train = data.x[train_rows]
         fitted = _tuned(method, x_train, error_dph[train_rows], data.groups[train_rows], inner)
-        x_test = clamp_rows(data.x[test_rows], x_train.min(axis=0), x_train.max(axis=0), shifted)
-        predicted = fitted.y_mean + fitted.y_scale * fitted.estimator.predict((x_test - fitted.x_mean) / fitted.x_scale)
+        policy = outside_policy(outside, fitted, x_train, error_dph[train_rows], data.groups[train_rows], inner)
+        predicted = served(fitted, data.x[test_rows], x_train.min(axis=0), x_train.max(axis=0), shifted, policy)
         in_sample = fitted.y_mean + fitted.y_scale * fitted.estimator.predict((x_train - fitted.x_mean) / fitted.x_scale)
         levels = run_levels(error_dph[train_rows] - in_sample, data.groups[train_rows], data.groups[test_rows])
         residual[test_rows] = predicted + levels - error_dph[test_rows]
     return residual
+
+
+def served(fitted: Fitted, x: np.ndarray, low: np.ndarray, high: np.ndarray, shifted: tuple[int, ...],
+           policy: OutsideRange) -> np.ndarray:  # fmt: skip
+    """`fitted`'s thermal error (deg/h) for raw rows `x` as the daemon serves it with the calibrated range
+    [low, high]: the model on the clamped rows, rows outside by `policy` (as fogd.core.frozen's beyond_rows)."""
+    mean, scale = fitted.x_mean, fitted.x_scale
+    clamped = clamp_rows(x, low, high, shifted)
+    cs = (clamped - mean) / scale
+    g = np.asarray(fitted.estimator.predict(cs), dtype=np.float64)
+    outside = np.any(clamped != x, axis=1)
+    if policy.policy != "clamp" and outside.any():
+
+        def inside_g(ys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            back = (clamp_rows(ys * scale + mean, low, high, shifted) - mean) / scale
+            return np.asarray(fitted.estimator.predict(back), dtype=np.float64), back
+
+        g[outside] = policy.rows(((x - mean) / scale)[outside], cs[outside], g[outside], inside_g)
+    return fitted.y_mean + fitted.y_scale * g
+
+
+def outside_policy(outside: str, fitted: Fitted, x: np.ndarray, error_dph: np.ndarray, groups: np.ndarray,
+                   options: FitOptions) -> OutsideRange:  # fmt: skip
+    """The policy `outside` with, for "trend" and "linear", the linear fit to the same rows (as fogd-train stores
+    it: fogd.calibration.training.outside_document), in the model's scaling."""
+    if outside not in LINEAR_POLICIES:
+        return OutsideRange(outside)
+    linear = fitted if fitted.method == "linear" else fit("linear", x, error_dph, groups, options)
+    if not (np.array_equal(linear.x_mean, fitted.x_mean) and np.array_equal(linear.x_scale, fitted.x_scale)
+            and linear.y_mean == fitted.y_mean and linear.y_scale == fitted.y_scale):  # fmt: skip
+        raise AssertionError("the linear fit must share the model's scaling")
+    return OutsideRange(outside, np.asarray(linear.params["coef"]), float(linear.params["intercept"]))
 
 
 def _tuned(method: str, x: np.ndarray, error_dph: np.ndarray, groups: np.ndarray, options: FitOptions) -> Fitted:

@@ -45,11 +45,10 @@ def folds(groups: np.ndarray, n_folds: int) -> list[Split]:
 
 
 def time_folds(groups: np.ndarray, n_folds: int, gap_rows: int, min_runs: int = MIN_RUNS_LEFT_OUT) -> list[Split]:
-    """The ladder's outer folds (fogd.calibration.ladder): leave-one-run-out with `min_runs` runs or more; with
-    fewer, `n_folds` contiguous stretches of every run (the k-th of each held out together), each held out with
-    `gap_rows` rows on either side of it dropped from the training rows of its run, so that no training block
-    shares the held-out stretch's thermal history (a lag of tau s remembers about tau s; `gap_rows` covers the
-    longest)."""
+    """Leave-one-run-out with `min_runs` runs or more; with fewer, `n_folds` contiguous stretches of every run
+    (the k-th of each held out together), each held out with `gap_rows` rows on either side of it dropped from
+    the training rows of its run, so that no training block shares the held-out stretch's thermal history (a lag
+    of tau s remembers about tau s; `gap_rows` covers the longest)."""
     groups = np.asarray(groups)
     rows = np.arange(groups.size)
     runs = np.unique(groups)
@@ -67,6 +66,41 @@ def time_folds(groups: np.ndarray, n_folds: int, gap_rows: int, min_runs: int = 
             fold_of[stretch] = fold
             near[fold, in_run[(in_run >= stretch[0] - gap_rows) & (in_run <= stretch[-1] + gap_rows)]] = True
     return [(rows[~near[fold]], rows[fold_of == fold]) for fold in range(n_folds)]
+
+
+def held_out_stretches(groups: np.ndarray, splits: list[Split]) -> np.ndarray:
+    """A label for each row naming its held-out stretch: the fold that tests it and its run. With
+    leave-one-run-out a stretch is a whole run; with time folds, a stretch of one run. Scoring residuals
+    about each stretch's own mean judges a stretch as if it were a run of its own (`drift_rmse`)."""
+    groups = np.asarray(groups)
+    _, run = np.unique(groups, return_inverse=True)
+    fold = np.full(groups.size, -1)
+    for k, (_, test) in enumerate(splits):
+        fold[test] = k
+    return fold * (int(run.max(initial=0)) + 1) + run
+
+
+def stretch_folds(groups: np.ndarray, n_folds: int, gap_rows: int, min_runs: int = MIN_RUNS_LEFT_OUT) -> list[Split]:
+    """The ladder's outer folds (fogd.calibration.ladder): leave-one-run-out with `min_runs` runs or more; with
+    fewer, each run cut into `n_folds` contiguous stretches held out one at a time (one stretch of one run per
+    fold), its run's rows within `gap_rows` of it dropped from the training rows (as `time_folds`) and every
+    other run trained on whole, as the model that is served is trained on every run."""
+    groups = np.asarray(groups)
+    rows = np.arange(groups.size)
+    runs = np.unique(groups)
+    if runs.size >= min_runs:
+        return time_folds(groups, n_folds, gap_rows, min_runs)
+    if n_folds < 2:
+        raise InputError(f"held-out folds need at least {min_runs} runs or --folds >= 2 (have {n_folds}): add a run or raise --folds")
+    splits = []
+    for run in runs:
+        in_run = rows[groups == run]
+        if in_run.size < n_folds:
+            raise InputError(f"{in_run.size} block rows in a run are too few for {n_folds} time folds: record a longer run")
+        for stretch in np.array_split(in_run, n_folds):
+            near = (groups == run) & (rows >= stretch[0] - gap_rows) & (rows <= stretch[-1] + gap_rows)
+            splits.append((rows[~near], stretch))
+    return splits
 
 
 def fit_in_runs(estimator, xs: np.ndarray, ys: np.ndarray, groups: np.ndarray | None):

@@ -66,16 +66,32 @@ class RunOffsetLeastSquares(RegressorMixin, BaseEstimator):
     def fit(self, xs: np.ndarray, ys: np.ndarray, groups: np.ndarray | None = None) -> "RunOffsetLeastSquares":
         features = self.features(xs)
         centred_x, centred_y = centred_within_runs(features, groups), centred_within_runs(ys, groups)
+        moving = moves_within_runs(features, centred_x)  # the others are the runs' offsets over again
+        centred_x = centred_x[:, moving]
         penalty = self.powers.penalty_rows if isinstance(self.powers, CoilTerms) else None
         if penalty is not None and penalty.shape[0]:  # the coil trend's rate prior: |penalty coef|^2 added
-            centred_x = np.vstack((centred_x, penalty))
+            centred_x = np.vstack((centred_x, penalty[:, moving]))
             centred_y = np.concatenate((centred_y, np.zeros(penalty.shape[0])))
-        self.coef_ = np.linalg.lstsq(centred_x, centred_y, rcond=None)[0]
+        self.coef_ = np.zeros(features.shape[1])
+        self.coef_[moving] = np.linalg.lstsq(centred_x, centred_y, rcond=None)[0]
         self.intercept_ = float(np.mean(ys) - features.mean(axis=0) @ self.coef_)
         return self
 
     def predict(self, xs: np.ndarray) -> np.ndarray:
         return self.features(xs) @ self.coef_ + self.intercept_
+
+
+def moves_within_runs(features: np.ndarray, centred: np.ndarray) -> np.ndarray:
+    """The columns of `features` that the rows can tell from their runs' offsets (`centred`: the same columns
+    centred within each run): their squares about their run means add up to more than one row at their spread
+    about the rows' overall mean. The others get no coefficient. The play operator held at +1 on a heating run
+    and -1 on a cooling one, once a time fold has held out the stretch where each turned (fogd.calibration.
+    ladder), is told from the offsets by its sensor-noise wiggles alone; its coefficient was fitted on them, and
+    a held-out row where it is back at 0 was off by it: the 200 Hz quick-start's time folds scored the lag bank
+    at 0.5 deg/h against linear's 0.06. A t-test on the coefficient does not tell: the wiggles go with the lags'
+    sensor noise, and the fit takes them to cancel it."""
+    total_ms = np.mean((features - features.mean(axis=0)) ** 2, axis=0)
+    return np.sum(centred**2, axis=0) > total_ms
 
 
 def full_powers(inputs: int, degree: int) -> np.ndarray:
