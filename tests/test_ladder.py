@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fogd.calibration.ladder import RUNGS, Rung, Scored, choose, climb, score
+from fogd.calibration.ladder import NONE, RUNGS, Rung, Scored, choose, climb, score
 from fogd.calibration.models import FitOptions, pso_minimize
 from fogd.calibration.models.folds import stretch_folds, time_folds
 from fogd.calibration.training import TrainConfig
@@ -82,7 +82,7 @@ def test_two_runs_whose_truth_is_linear_are_fitted_linear(seed):
 def test_a_lag_effect_climbs_to_the_lag_bank():
     result = ladder(coil_gradient)
     assert result.chosen.rung.inputs_text != "temp,rate@50", result.line()
-    linear = result.scored[0]
+    linear = result.scored[1]
     assert result.chosen.drift_rmse_dph + result.chosen.spread_dph < linear.drift_rmse_dph
     line = result.line()
     assert line.startswith(f"ladder: chose {result.chosen.rung.name} ") and "\n" not in line
@@ -108,14 +108,14 @@ def test_two_runs_whose_truth_is_a_lag_rank_the_lag_bank_above_linear(seed):
     the lag bank at 1.82 deg/h against linear's 0.86 (0.36 now; the 200 Hz quick-start: 0.5 against 0.06)."""
     runs = [noisy_sensor_run([(0, -10), (H, -10), (4 * H, 50), (4.5 * H, 50)], 2 * seed),
             noisy_sensor_run([(0, 50), (H, 50), (4 * H, -10), (4.5 * H, -10)], 2 * seed + 1)]  # fmt: skip
-    result = climb(runs, TrainConfig(fit=FitOptions(particles=4, iterations=3, progress=False)), rungs=RUNGS[:3])
-    linear, lag_bank = result.scored[0], result.scored[2]
+    result = climb(runs, TrainConfig(fit=FitOptions(particles=4, iterations=3, progress=False)), rungs=RUNGS[:4])
+    linear, lag_bank = result.scored[1], result.scored[3]
     assert lag_bank.rung.name == "lag bank" and lag_bank.drift_rmse_dph <= linear.drift_rmse_dph, result.line()
 
 
-def scored(name: str, folds: list[float]) -> Scored:
+def scored(name: str, folds: list[float], method: str = "linear") -> Scored:
     """A rung scored on equal folds: its drift their RMS, its spread their standard error."""
-    return Scored(Rung(name, "linear", "temp"), (), float(np.sqrt(np.mean(np.square(folds)))),
+    return Scored(Rung(name, method, "temp"), (), float(np.sqrt(np.mean(np.square(folds)))),
                   float(np.std(folds, ddof=1) / np.sqrt(len(folds))), list(folds), 0.0)  # fmt: skip
 
 
@@ -144,6 +144,28 @@ def test_choose_is_the_first_rung_that_improves_on_the_simpler_ones_within_a_pai
     assert within(chosen) and improves(at)
     assert not any(within(s) and improves(i) for i, s in enumerate(rungs[:at]))
     assert chosen is rungs[0] or chosen.drift_rmse_dph < rungs[0].drift_rmse_dph  # never worse than the first (linear)
+
+
+@given(st.integers(2, 6).flatmap(lambda folds: st.lists(st.lists(st.floats(0.0, 10.0), min_size=folds, max_size=folds),
+                                                         min_size=2, max_size=5)))  # fmt: skip
+def test_no_compensation_is_chosen_only_when_no_rung_is_below_it(figures):
+    """Rung 0 is never "within one standard error" of a better rung: below it, the rule is the modelling
+    rungs' own among those that improve on it (a rung that does not is never in the running)."""
+    nothing, *models = [scored(str(i), folds, NONE if i == 0 else "linear") for i, folds in enumerate(figures)]
+    chosen = choose([nothing, *models])
+    better = [s for s in models if s.drift_rmse_dph < nothing.drift_rmse_dph]
+    assert chosen is (choose(better) if better else nothing)
+
+
+@settings(max_examples=4, deadline=None)
+@given(st.integers(0, 2**16), st.floats(0.02, 0.2))
+def test_a_channel_with_a_strong_thermal_error_is_never_left_uncompensated(seed, slope_dph_per_c):
+    """0.02-0.2 deg/h per C over 60 C on a heating and a cooling run: 4-40x the blocks' noise."""
+    truth = lambda temp_c: slope_dph_per_c * (temp_c - 20.0)  # noqa: E731
+    runs = [make_run(HEAT, truth, seed), make_run(COOL, truth, seed + 1)]
+    result = climb(runs, TrainConfig(fit=FitOptions(particles=4, iterations=3, progress=False)), rungs=RUNGS[:3])
+    assert result.chosen.rung.method != NONE and result.chosen.drift_rmse_dph < result.scored[0].drift_rmse_dph, result.line()
+    assert np.ptp(result.trained.fit_dph) > 0.5 * slope_dph_per_c * 60  # it compensates
 
 
 @settings(max_examples=60, deadline=None)
@@ -321,3 +343,47 @@ def test_short_runs_get_as_much_of_a_gap_as_leaves_a_third_of_them_to_train_on()
         for run, size in ((0, 80), (1, 95)):
             assert np.sum(groups[train] == run) >= 80 / 3
     assert affordable_gap(np.zeros(864, dtype=int), 5) >= 30  # a day at 1 Hz keeps the lag bank's whole 3000 s
+
+
+def flat_imu_run(source: Path, out: Path) -> Path:
+    """An IMU run with rate_y_dph's simulated thermal error taken out: that channel is noise alone."""
+    table = np.genfromtxt(source, delimiter=",", names=True)
+    names = list(table.dtype.names)
+    flat = np.column_stack([table[n] - (table["true_error_rate_y_dph"] if n == "rate_y_dph" else 0) for n in names])
+    np.savetxt(out, flat, delimiter=",", header=",".join(names), comments="", fmt="%.9g")
+    return out
+
+
+def test_a_channel_of_noise_alone_is_passed_through_and_its_neighbour_compensated(imu_runs, tmp_path, capsys):
+    """End to end: fogd-train's default on an IMU whose rate_y_dph has no thermal error writes rung 0 for it (said
+    in its one line, its estimate stored and shown like any rung's) and a model for rate_x_dph; fogd-replay, on the
+    real model file, outputs rate_y_dph's readings unchanged. Alone, rate_y_dph gives a valid model, with a warning."""
+    from fogd.cli import replay as replay_cli
+    from fogd.cli import train as train_cli
+
+    heat, cool, check = (flat_imu_run(imu_runs[name], tmp_path / f"{name}.csv") for name in ("heat", "cool", "check"))
+    model = tmp_path / "imu.json"
+    common = ["--particles", "4", "--iterations", "2", "-q"]
+    assert train_cli.main([str(heat), str(cool), "-o", str(model), "--channels", "rate_x_dph,rate_y_dph", *common]) == 0
+    out, err = capsys.readouterr()
+    (line,) = [line for line in out.splitlines() if line.startswith("rate_y_dph: ladder: chose")]
+    assert line.startswith("rate_y_dph: ladder: chose no compensation") and "linear " in line and "lag bank " in line
+    assert "rate_x_dph: ladder: chose no compensation" not in out and "passed through uncompensated: rate_y_dph" in err
+    assert "warning" not in err
+    stored = json.loads(model.read_text())["channels"]["rate_y_dph"]["metrics"]["held_out"]
+    assert stored["rung"] == "no compensation" and f"no compensation {stored['drift_rmse_dph']:.3g} ± " in line
+    shown = statsfile.describe(snapshot(modelfile.held_out(modelfile.load_channels(model))))
+    assert f"rate_y_dph {stored['drift_rmse_dph']:.3g} ± {stored['spread_dph']:.2g} deg/h" in shown
+
+    replayed = tmp_path / "out.csv"
+    assert replay_cli.main([str(model), str(check), "-o", str(replayed), "--no-allan"]) == 0
+    written = np.genfromtxt(replayed, delimiter=",", names=True)
+    recorded = np.genfromtxt(check, delimiter=",", names=True)
+    np.testing.assert_array_equal(written["rate_y_comp_dph"], recorded["rate_y_dph"])
+    assert np.all(written["comp_rate_y_dph"] == 0.0) and np.ptp(written["comp_rate_x_dph"]) > 0
+
+    alone = tmp_path / "alone.json"
+    assert train_cli.main([str(heat), str(cool), "-o", str(alone), "--channels", "rate_y_dph", *common]) == 0
+    err = capsys.readouterr().err
+    assert "warning: no channel is compensated" not in err and "warning: nothing is compensated" in err
+    assert modelfile.load_channels(alone).channels == ("rate_y_dph",)

@@ -22,7 +22,7 @@ from typing import Any
 from joblib import Parallel, delayed
 
 from fogd.calibration.features import Inputs, run_inputs, shared_inputs
-from fogd.calibration.ladder import climb
+from fogd.calibration.ladder import NONE, climb
 from fogd.calibration.models import METHODS
 from fogd.calibration.models.folds import MIN_RUNS_LEFT_OUT, drift_rmse
 from fogd.calibration.replay import replay, replay_table
@@ -104,6 +104,7 @@ class ChannelFit:
     held_out_dph: float | None = None
     selection: list[str] | None = None  # --method auto's table (markdown) for the report
     worse: str | None = None  # the held-out drift exceeds the uncompensated drift: what to say
+    uncompensated: bool = False  # the ladder chose rung 0: the channel's readings pass through unchanged
     error: FogdError | None = None
 
 
@@ -181,7 +182,8 @@ def _fit(job: ChannelJob, settings: Settings, result: ChannelFit) -> None:
         result.chosen.document["training"]["ladder"] = {"rule": "one standard error", "folds": ladder.folds,
                                                         "rungs": [s.row() for s in ladder.scored]}  # fmt: skip
         result.selection = ladder.table(unit)
-        say.out(ladder.line(unit))
+        say.out(f"{job.channel}: {ladder.line(unit)}" if job.channel else ladder.line(unit))
+        result.uncompensated = ladder.chosen.rung.method == NONE
         result.held_out_dph = ladder.chosen.drift_rmse_dph
         nothing_dph = ladder.uncompensated_dph
     elif settings.auto:
@@ -248,6 +250,8 @@ def worse_than_nothing(trained: Trained, held_out_dph: float | None, unit: str =
 
 def summary(trained: Trained, unit: str = "deg/h") -> list[str]:
     """The chosen fit's hyper-parameters and its held-out drift beside the uncompensated one."""
+    if trained.fitted.hyperparameters.get("compensation") == "none":  # the ladder's rung 0 (training.no_compensation)
+        return ["no compensation: the readings pass through unchanged (a linear model whose coefficients are zero)"]
     hyper = unit_named(trained.fitted.hyperparameters, unit)
     if epsilon_key(unit) in hyper:  # the tube in the channel's unit says what the scaled epsilon says; one is enough
         hyper.pop("epsilon", None)

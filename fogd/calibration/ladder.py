@@ -1,6 +1,8 @@
 """`fogd-train`'s default: the model chosen on the user's own runs from a ladder that starts at IEEE 952 linear.
 
-The rungs, simplest first (`RUNGS`): IEEE 952's linear model in the temperature and its 50 s rate; the same
+The rungs, simplest first (`RUNGS`): no compensation at all (rung 0: the reading passed through, stored as a
+linear model whose coefficients are zero, `training.no_compensation`); IEEE 952's linear model in the temperature
+and its 50 s rate; the same
 with the static curve (the coil trend's powers 2 and 3 of the temperature); the coil trend over the lag bank
 and play operator (fogd's thermal state, no kernel); and that trend under the PSO-tuned SVR (fogd's richest
 model). Each rung is scored on folds that respect time (`fogd.calibration.models.folds.stretch_folds`:
@@ -29,6 +31,19 @@ the static curve, 1.7-11.3x the noise floor on the held-out runs. The standard e
 the paired rule takes the top rung, 1.00-1.08x. A rung no better than a simpler one is left out first: a per-pair
 spread could otherwise take a rung as good as linear whose differences from the best are merely noisier. Only
 the chosen rung is refitted on all the runs.
+
+Rung 0, no compensation, is scored on the same folds and every rung must improve on it to be taken: a channel
+whose held-out drift no model reduces (the IMU guide's 2 Hz run: on rate_y_dph linear 4.13e-2, static curve
+3.77e-2, lag bank 3.72e-2 deg/h against 3.32e-2 uncompensated) is served as it comes rather than refused, and its
+neighbours keep their models; the refusal to write a model worse than none (channels.worse_than_nothing) then
+only meets a model the user named with --method. Rung 0 is taken only when it is the best, never as "within one
+standard error" of a better rung: scored about each stretch's own level it is forgiven the drift between
+stretches, which is thermal (the guide's rate_x_dph: 2.89e-2 about the stretches' levels, 6.9e-2 about the
+levels the run's other stretches give), and a single run's stretches cannot show what a model gains on another
+history. With the margin, that run's rate_x_dph (linear 2.60e-2, error of the paired differences 3.0e-3) and
+accel_y_g (static curve 1.97e-4 against 2.29e-4, error 6.0e-5) went uncompensated: 3.24e-2 deg/h and 2.63e-4 g on
+the held-out paper-test run (seed 3, floor 2.41e-2 and 1.8e-6) where the rungs now taken, linear and the static
+curve, leave 2.44e-2 and 2.6e-5.
 
 The paired rule climbs more readily, and it climbs wrongly where the folds cannot see the loss: on the 200 Hz
 quick start (tactical noise, bench_train.py, seed 1) the lag bank scored 2.42e-2 deg/h against the static curve's
@@ -60,13 +75,21 @@ from typing import Callable
 
 import numpy as np
 
-from fogd.calibration.models.folds import MIN_RUNS_LEFT_OUT, Split, drift_rmse, held_out_stretches, stretch_folds
+from fogd.calibration.models.folds import (
+    MIN_RUNS_LEFT_OUT,
+    Split,
+    drift_rmse,
+    held_out_stretches,
+    run_levels,
+    stretch_folds,
+)
 from fogd.calibration.selection import fit_family, nested_residual
-from fogd.calibration.training import TrainConfig, Trained, for_sensor, options_for_inputs, prepare
+from fogd.calibration.training import TrainConfig, Trained, for_sensor, no_compensation, options_for_inputs, prepare
 from fogd.core.inputs import DEFAULT_INPUTS_TEXT, InputSpec, describe_inputs, parse_inputs, shifted_columns
 from fogd.errors import InputError
 
 PAPER_INPUTS_TEXT = "temp,rate@50"  # IEEE 952's T and dT/dt (the paper's eq. 16 rate over 50 s)
+NONE = "none"  # rung 0's method: nothing fitted, the reading passed through (training.no_compensation)
 # Scoring the SVR rung tunes a swarm inside every held-out fold: a small one (SCORE_PARTICLES, stopping after
 # SCORE_PATIENCE still iterations, on SCORE_FOLDS inner folds), or the rung alone costs minutes on a day's run
 # (24 h at 1 Hz: 330 s of CPU with 20 particles, patience 10 and 5 inner folds). The chosen model is then fitted
@@ -79,7 +102,8 @@ SCORE_FOLDS = 3
 
 @dataclass(frozen=True)
 class Rung:
-    """One model of the ladder: a family on an input set (`search=False`: pso-svr's trend alone, no kernel)."""
+    """One model of the ladder: a family on an input set (`search=False`: pso-svr's trend alone, no kernel;
+    method `NONE`: no compensation, its input the temperature only, for the CLAMPED flag)."""
 
     name: str
     method: str
@@ -88,6 +112,7 @@ class Rung:
 
 
 RUNGS = (
+    Rung("no compensation", NONE, "temp"),
     Rung("linear", "linear", PAPER_INPUTS_TEXT),
     Rung("static curve", "pso-svr", PAPER_INPUTS_TEXT, search=False),
     Rung("lag bank", "pso-svr", DEFAULT_INPUTS_TEXT, search=False),
@@ -133,17 +158,21 @@ class Ladder:
         lines = [f"Model ladder ({self.folds}; the simplest rung within one standard error of the best, that of "
                  "their per-fold differences):", "",
                  f"| Rung | Model | Held-out drift ({unit}) | Standard error | |", "|---|---|---:|---:|---|"]  # fmt: skip
-        lines += [f"| {s.rung.name} | {s.rung.method} `{describe_inputs(s.inputs)}` | {s.drift_rmse_dph:.3e} | "
+        lines += [f"| {s.rung.name} | {'-' if s.rung.method == NONE else f'{s.rung.method} `{describe_inputs(s.inputs)}`'} | {s.drift_rmse_dph:.3e} | "
                   f"{s.spread_dph:.2e} | {'chosen' if s is self.chosen else ''} |" for s in self.scored]  # fmt: skip
         return lines
 
     def line(self, unit: str = "deg/h") -> str:
         """What was chosen and why, with every rung's held-out figure, in one line."""
         best = min(self.scored, key=lambda s: s.drift_rmse_dph)
+        figures = "; ".join(f"{s.rung.name} {s.drift_rmse_dph:.3g} ± {s.spread_dph:.2g}" for s in self.scored)
+        if self.chosen.rung.method == NONE:
+            return (f"ladder: chose no compensation (the readings pass through unchanged): no rung's held-out drift "
+                    f"is below the uncompensated {self.chosen.drift_rmse_dph:.3g} {unit}; held-out drift ({unit}, "
+                    f"{self.folds}): {figures}")  # fmt: skip
         why = ("the best held-out drift" if self.chosen is best else
                f"the simplest within one standard error of the best ({best.rung.name}; the error of their "
                f"per-fold differences, {paired_spread(self.chosen, best):.2g})")  # fmt: skip
-        figures = "; ".join(f"{s.rung.name} {s.drift_rmse_dph:.3g} ± {s.spread_dph:.2g}" for s in self.scored)
         return (f"ladder: chose {self.chosen.rung.name} ({self.chosen.rung.method} [{describe_inputs(self.chosen.inputs)}]), "
                 f"{why}; held-out drift ({unit}, {self.folds}): {figures}")  # fmt: skip
 
@@ -168,6 +197,15 @@ def uncompensated(error_dph: np.ndarray, groups: np.ndarray, splits: list[Split]
     return drift_rmse(error_dph, held_out_stretches(groups, splits))
 
 
+def unpredicted(error_dph: np.ndarray, groups: np.ndarray, splits: list[Split]) -> np.ndarray:
+    """Rung 0's held-out residuals: nothing predicted, each held-out stretch at the level its run's training rows
+    give (`run_levels`), as a fitted rung's (`selection.nested_residual`)."""
+    residual = np.full_like(error_dph, np.nan)
+    for train, test in splits:
+        residual[test] = run_levels(error_dph[train], groups[train], groups[test]) - error_dph[test]
+    return residual
+
+
 def score(residual: np.ndarray, groups: np.ndarray, splits: list[Split]) -> tuple[float, float, list[float]]:
     """A rung's held-out figures from its residuals: the drift with each held-out stretch about its own mean
     (`held_out_stretches`), the standard error of its per-fold figures and those figures (a fold: its runs'
@@ -185,11 +223,13 @@ def paired_spread(rung: Scored, best: Scored) -> float:
 
 def choose(scored: list[Scored]) -> Scored:
     """The one-standard-error rule: of the rungs that improve on every simpler rung (a richer rung no better
-    than a simpler one is never worth its complexity), the first whose drift is within one standard error of
-    the best rung's, the standard error of their paired per-fold differences (module docstring)."""
+    than a simpler one is never worth its complexity; every rung must improve on no compensation), the first
+    whose drift is within one standard error of the best rung's, the standard error of their paired per-fold
+    differences; no compensation only when it is the best (module docstring)."""
     front = [s for i, s in enumerate(scored) if all(s.drift_rmse_dph < t.drift_rmse_dph for t in scored[:i])]
     best = front[-1]
-    return next(s for s in front if s.drift_rmse_dph <= best.drift_rmse_dph + paired_spread(s, best))
+    return next(s for s in front if s is best or (s.rung.method != NONE and
+                                                  s.drift_rmse_dph <= best.drift_rmse_dph + paired_spread(s, best)))
 
 
 def climb(runs, config: TrainConfig, rungs: tuple[Rung, ...] = RUNGS, log: Callable[[str], None] | None = None,
@@ -218,10 +258,13 @@ def climb(runs, config: TrainConfig, rungs: tuple[Rung, ...] = RUNGS, log: Calla
                 nothing_dph = uncompensated(data.rate_dph - reference, groups, splits)
             elif not np.array_equal(groups, data.groups):
                 raise AssertionError("every rung must be scored on the very same blocks")
-            scoring = dataclasses.replace(options, particles=min(options.particles, SCORE_PARTICLES), folds=SCORE_FOLDS,
-                                          patience=min(options.patience or SCORE_PATIENCE, SCORE_PATIENCE))  # fmt: skip
-            residual = nested_residual(rung.method, data, data.rate_dph - reference, scoring, shifted_columns(specs), splits,
-                                       config.outside)  # as the model will be served beyond its range
+            if rung.method == NONE:
+                residual = unpredicted(data.rate_dph - reference, groups, splits)
+            else:
+                scoring = dataclasses.replace(options, particles=min(options.particles, SCORE_PARTICLES), folds=SCORE_FOLDS,
+                                              patience=min(options.patience or SCORE_PATIENCE, SCORE_PATIENCE))  # fmt: skip
+                residual = nested_residual(rung.method, data, data.rate_dph - reference, scoring, shifted_columns(specs),
+                                           splits, config.outside)  # as the model will be served beyond its range
         except InputError as error:  # too few rows for this rung: say so, climb on
             if log:
                 log(f"ladder: {rung.name} skipped: {error}")
@@ -237,7 +280,8 @@ def climb(runs, config: TrainConfig, rungs: tuple[Rung, ...] = RUNGS, log: Calla
     rung = chosen.rung
     options = options_for_inputs(dataclasses.replace(config.fit, search=rung.search), chosen.inputs)
     final = dataclasses.replace(config, method=rung.method, inputs=chosen.inputs, fit=options)
-    trained = fit_family(runs, final, chosen.prepared, rung.method)
+    trained = (no_compensation(runs, final, chosen.prepared) if rung.method == NONE else
+               fit_family(runs, final, chosen.prepared, rung.method))  # fmt: skip
     n_runs = len(np.unique(groups))
     folds = (f"leave-one-run-out, {n_runs} runs" if n_runs >= MIN_RUNS_LEFT_OUT else
              f"{len(splits)} time folds ({config.fit.folds} stretches of each run, one at a time), {gap} blocks apart" if n_runs > 1 else

@@ -109,14 +109,37 @@ def train(runs: list[Run], config: TrainConfig, prepared: tuple[TrainingSet, flo
     options = options_for_inputs(config.fit, config.inputs)
     fitted = fit(config.method, data.x, error, data.groups, options)
     _name_coil_temperature(fitted, config.inputs)
+    return _trained(config, data, reference, error, fitted, options, config.method)
+
+
+def no_compensation(runs: list[Run], config: TrainConfig, prepared: tuple[TrainingSet, float] | None = None) -> Trained:
+    """The ladder's rung 0 as a model file holds it: IEEE 952's linear model with every coefficient zero, so the
+    daemon and fogd-replay pass the reading through unchanged (flags as for any model: CLAMPED beyond the
+    calibrated range, where the held-out estimate was not measured). The constant a model removes is the same
+    as every rung's: none with the default `--reference mean`, the runs' mean rate less the reference given
+    as a value (a linear fit's intercept is the runs' mean offset)."""
+    config = for_sensor(runs, config)
+    data, reference = prepared or prepare(runs, config)
+    error = data.rate_dph - reference
+    x_std = data.x.std(axis=0)
+    offset_dph = 0.0 if config.reference == "mean" else float(np.mean(error))
+    fitted = Fitted("linear", data.x.mean(axis=0), np.where(x_std > 0, x_std, 1.0), offset_dph, 1.0,
+                    {"coef": [0.0] * data.x.shape[1], "intercept": 0.0}, {"compensation": "none"})  # fmt: skip
+    options = options_for_inputs(config.fit, config.inputs)
+    return _trained(config, data, reference, error, fitted, options, "uncompensated")
+
+
+def _trained(config: TrainConfig, data: TrainingSet, reference: float, error: np.ndarray, fitted: Fitted,
+             options: FitOptions, default_name: str) -> Trained:  # fmt: skip
+    """The model document of `fitted` (`default_name`-DATE unless --name), validated by loading it back."""
     created = dt.datetime.now(dt.timezone.utc).replace(microsecond=0).isoformat()
     metrics = {
         "train_before": ErrorStats.about_run_means(error, data.groups).to_dict(),
         "cv_rmse_dph": fitted.cv_rmse_dph,
     }
     document = modelfile.document(
-        name=config.name or f"{config.method}-{created[:10]}",
-        method=config.method,
+        name=config.name or f"{default_name}-{created[:10]}",
+        method=fitted.method,
         inputs=config.inputs,
         x_mean=fitted.x_mean,
         x_scale=fitted.x_scale,
@@ -132,7 +155,7 @@ def train(runs: list[Run], config: TrainConfig, prepared: tuple[TrainingSet, flo
             "block_s": config.block_s,
             "block_samples": [block_samples(config.block_s, run["rate_hz"]) for run in data.runs],
             "reference": config.reference if config.reference == "mean" else "value",
-            "fitness": config.fit.fitness if config.method == "pso-svr" else None,
+            "fitness": config.fit.fitness if fitted.method == "pso-svr" else None,
             "hyperparameters": _json_ready(fitted.hyperparameters),
             "fitness_history_dph": [float(value) for value in fitted.fitness_history],
             "fit_temperature": "smoothed" if config.smoothed_fit and dequantises(config.inputs) else "as served",
@@ -146,7 +169,7 @@ def train(runs: list[Run], config: TrainConfig, prepared: tuple[TrainingSet, flo
         model = modelfile.from_document(document)
     except modelfile.ModelOutputError as error:  # fitted here, so not hostile: a polynomial that extrapolates
         raise InputError(
-            f"the fitted {config.method} model reaches {error.value_dph:.3g} {config.unit} within its calibrated input "
+            f"the fitted {fitted.method} model reaches {error.value_dph:.3g} {config.unit} within its calibrated input "
             f"range (beyond the {modelfile.MAX_COMP_DPH:g} {config.unit} any sensor could need): a polynomial "
             "extrapolating between inputs; use the default --method pso-svr, or a lower --degree or --poly-terms temp"
         ) from None

@@ -289,13 +289,22 @@ def _finish(args: argparse.Namespace, unit: Unit, jobs: list[ChannelJob], fits: 
             leave_out = "leave the channel out (--channels), " if fit.channel else ""
             raise InputError(f"{where}{fit.worse}; record more or longer runs over the range in use, {leave_out}"
                              "try --method auto, or --force to write it anyway")  # fmt: skip
+    passed = [fit.channel or "the gyro" for fit in fits if fit.uncompensated]
+    if passed and len(passed) == len(fits):  # a valid model that compensates nothing: written, and said so
+        where = f"unit {unit.name}: " if args.manifest else ""
+        print(f"{PROG}: warning: {where}{'nothing' if len(fits) == 1 else 'no channel'} is compensated: no model improved "
+              "on the uncompensated held-out drift by more than its standard error, so the model file passes the "
+              "readings through unchanged; record runs over a wider temperature range, or try --method auto",
+              file=sys.stderr)  # fmt: skip
     if unit.out:
         document = unit_document(args.name or (unit.name if args.manifest else None), fits)
         modelfile.save(unit.out, document, inputs=[*unit.runs, *unit.holdout])
         if len(fits) == 1 and fits[0].channel is None:
             print(f"\nwrote {unit.out} ({fits[0].label}, {fits[0].chosen.model.name})", file=sys.stderr)
         else:
-            print(f"\nwrote {unit.out} ({len(fits)} channels: {', '.join(fit.channel for fit in fits)})", file=sys.stderr)
+            through = f"; passed through uncompensated: {', '.join(passed)}" if passed else ""
+            print(f"\nwrote {unit.out} ({len(fits)} channels: {', '.join(fit.channel for fit in fits)}{through})",
+                  file=sys.stderr)  # fmt: skip
     if args.report:
         from fogd.calibration.report import (
             write_report,  # matplotlib only when a report is asked for
