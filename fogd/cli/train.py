@@ -81,9 +81,10 @@ def parser() -> ArgumentParser:
                    "paths relative to the manifest")  # fmt: skip
     p.add_argument(
         "--method", choices=("ladder", *METHODS, "auto"), default=None,
-        help="model family (default: ladder; pso-svr when --inputs or --compare is given); ladder: the simplest of linear [temp,rate@50] (IEEE 952), its static curve, "
-        "the coil trend over the lag bank and that trend under PSO-SVR whose held-out drift is within one standard "
-        "error of the best's (leave-one-run-out with three runs or more, else --folds time folds of every run, a lag "
+        help="model family (default: ladder; pso-svr when --inputs or --compare is given); ladder: the simplest of no compensation, linear [temp,rate@50] (IEEE 952), its "
+        "static curve, the coil trend over the lag bank and that trend under PSO-SVR that improves on every simpler "
+        "one and whose held-out drift is within one standard error of the best's (no compensation only when it is "
+        "the best: a channel no model improves is passed through, with a warning when nothing is compensated) (leave-one-run-out with three runs or more, else --folds time folds of every run, a lag "
         "apart; it says "
         "what it chose and why in one line, and the model file keeps the estimate); auto: choose the family and the input set by nested held-out error (leave-one-run-out, "
         "or blocked time folds for one run; each family tuned without the fold it is scored on) among linear, "
@@ -119,7 +120,7 @@ def parser() -> ArgumentParser:
     )  # fmt: skip
     p.add_argument(
         "--force", action="store_true",
-        help="write the model even when its held-out error exceeds the uncompensated drift",
+        help="write a --method model even when its held-out error exceeds the uncompensated drift",
     )  # fmt: skip
     p.add_argument(
         "--fitness", choices=FITNESSES, default="cv",
