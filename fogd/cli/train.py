@@ -293,10 +293,9 @@ def _finish(args: argparse.Namespace, unit: Unit, jobs: list[ChannelJob], fits: 
     passed = [fit.channel or "the gyro" for fit in fits if fit.uncompensated]
     if passed and len(passed) == len(fits):  # a valid model that compensates nothing: written, and said so
         where = f"unit {unit.name}: " if args.manifest else ""
-        print(f"{PROG}: warning: {where}{'nothing' if len(fits) == 1 else 'no channel'} is compensated: no model improved "
-              "on the uncompensated held-out drift by more than its standard error, so the model file passes the "
-              "readings through unchanged; record runs over a wider temperature range, or try --method auto",
-              file=sys.stderr)  # fmt: skip
+        print(f"{PROG}: warning: {where}{'nothing' if len(fits) == 1 else 'no channel'} is compensated: no model's "
+              "held-out drift was below the uncompensated drift, so the model file passes the readings through "
+              "unchanged; record runs over a wider temperature range, or try --method auto", file=sys.stderr)  # fmt: skip
     if unit.out:
         document = unit_document(args.name or (unit.name if args.manifest else None), fits)
         modelfile.save(unit.out, document, inputs=[*unit.runs, *unit.holdout])
