@@ -52,7 +52,11 @@ quick start (tactical noise, bench_train.py, seed 1) the lag bank scored 2.42e-2
 static curve (2.25e-2 against 2.32e-2; paper-test 2.80e-2, the lag bank 3.27e-2). The lag bank's error there is
 a slope in temperature (+0.031 deg/h at 0 C to -0.043 at 28 C) that stretches of the same monotone runs, where
 temperature stands for time, do not show. The trade measured: 1.27x the floor against 1.03x there, 1.08x against
-11.25x on housing_tau_s=3000.
+11.25x on housing_tau_s=3000. Holding out each of the two runs whole does not reveal it either: the lag bank
+still scores best (seed 1: linear 4.15e-2, static curve 3.88e-2, lag bank 3.55e-2 deg/h), and two folds' paired
+error (8.5e-3 against linear) only sends the rule back to linear; on the 10 Hz quick start (navigation noise),
+where the lag bank leaves 1.02x the floor on paper-test and the static curve 3.51x, whole runs rank the static
+curve first (1.84e-2 against 2.37e-2). Three runs or more are held out whole (leave-one-run-out).
 
 Why one stretch of one run per fold: the served model is fitted on every run; a fold should lack as little
 of them as it can. Holding out the k-th stretch of every run together removed the same phase of each run at
