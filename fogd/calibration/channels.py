@@ -286,5 +286,5 @@ def unit_document(name: str | None, fits: list[ChannelFit]) -> dict[str, Any]:
         return fits[0].chosen.document
     created = dt.datetime.now(dt.timezone.utc).replace(microsecond=0).isoformat()
     documents = {fit.channel: fit.chosen.document for fit in fits}
-    default = f"{fits[0].label.removeprefix('auto: ').split(' ')[0]}-{created[:10]}"
+    default = f"{fits[0].label.removeprefix('auto: ').split(' ')[0].rstrip(':')}-{created[:10]}"  # ladder-DATE, pso-svr-DATE
     return modelfile.channels_document(name=name or default, documents=documents, created_utc=created)
