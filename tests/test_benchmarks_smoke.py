@@ -181,3 +181,22 @@ def test_the_results_page_opens_with_what_a_dedicated_box_should_see():
     page = bench.page_body(kept)
     assert page.startswith(bench.PAGE_INTRO)
     assert page.index(expect) < page.index("## daemon") and page.count(expect) == 2
+
+
+@pytest.mark.parametrize("restored", [True, False])
+def test_the_dedicated_box_restored_condition_starts_fogd_on_its_state_file(tmp_path, restored):
+    """bench_dedicated's restored-state process (what a box running all day sees) is the real daemon restoring the
+    state file the harness wrote for its port: no WARMING bound runs; fogd started without one starts cold."""
+    import bench_daemon
+    import bench_dedicated
+
+    command = (bench_dedicated.restored_command(str(bench_daemon.DEMO_MODEL), tmp_path) if restored
+               else bench_daemon.fogd_command(str(bench_daemon.DEMO_MODEL)))  # fmt: skip
+    harness = bench_daemon.Harness("fogd", command)
+    try:
+        harness.warm_up()
+        step = harness.run(bench_daemon.Step(200.0, 0.3))
+    finally:
+        log = harness.stop()
+    assert step.loss == 0 and step.read > 0
+    assert ("thermal state: restored" in log) == restored and ("cold start" in log) != restored, log

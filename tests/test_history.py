@@ -99,3 +99,39 @@ def test_priming_an_empty_history_changes_nothing():
     bank = InputBank(parse_inputs("temp,lag@100"), RATE_HZ)
     TempHistory(RATE_HZ).prime(bank)
     assert bank.update_one(21.0) == (21.0, 21.0)
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    steps=st.lists(st.integers(1, 30), min_size=1, max_size=120),
+    temps=st.lists(st.floats(-40.0, 80.0), min_size=120, max_size=120),
+    cuts=st.lists(st.integers(0, 120), max_size=6),
+    span_s=st.sampled_from([3.0, 8.0, 1000.0]),
+)
+def test_the_history_is_the_same_however_its_samples_are_grouped(steps, temps, cuts, span_s):
+    """Samples added one at a time and in chunks give the same history, and its block means are the plain
+    means of each 1 s block's samples (a short span fills the blocks and drops the run's start too)."""
+    times = np.cumsum(np.array(steps) / 10.0).tolist()
+    temps = temps[: len(times)]
+    one = TempHistory(10.0, span_s=span_s, tail_s=2.0)
+    for t_s, temp_c in zip(times, temps):
+        one.add(t_s, temp_c)
+    chunked = TempHistory(10.0, span_s=span_s, tail_s=2.0)
+    bounds = sorted({0, len(times), *(cut for cut in cuts if cut <= len(times))})
+    for lo, hi in zip(bounds, bounds[1:]):
+        chunked.extend(times[lo:hi], temps[lo:hi])
+    assert chunked.points() == one.points()
+    assert (chunked.first, chunked.last, chunked.samples, list(chunked.tail)) == (one.first, one.last, one.samples, list(one.tail))
+    blocks: dict[int, list[tuple[float, float]]] = {}
+    for t_s, temp_c in zip(times, temps):
+        blocks.setdefault(int(np.floor(t_s)), []).append((t_s, temp_c))
+    expected = [(np.mean([t for t, _ in b]), np.mean([c for _, c in b])) for b in blocks.values()]
+    held = int(span_s) + 2 + 1  # the closed blocks the history keeps and the open one
+    kept = expected[-held:]
+    start = [(times[0], temps[0])] if len(expected) <= held else []
+    got = chunked.points()
+    if got[-1] == (times[-1], temps[-1]) and len(got) > len(start) + len(kept):
+        got = got[:-1]  # the newest sample, after its block's mean
+    assert len(got) == len(start) + len(kept)
+    assert got[: len(start)] == start
+    np.testing.assert_allclose(np.array(got[len(start) :]), np.array(kept), rtol=1e-12, atol=1e-9)

@@ -53,7 +53,9 @@ class Rig:
     def read(self, data: bytes) -> None:
         """What the reader thread does with one read."""
         self.clock_s += 0.001
-        self.reader._frame(data, self.clock_s)
+        frames = self.reader.lexer.feed(data)
+        if frames:
+            self.reader._push(frames, self.clock_s)
 
     def drain(self) -> None:
         """What the loop thread does when the ring has frames."""

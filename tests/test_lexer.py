@@ -74,6 +74,36 @@ def test_one_byte_at_a_time_equals_all_at_once():
     assert whole.counters.frames_ok == 6 and whole.counters.other_frames == 1
 
 
+def _damaged(frame: bytes) -> bytes:
+    return frame[:20] + bytes([frame[20] ^ 0x10]) + frame[21:]
+
+
+KVH_READS = st.lists(
+    st.sampled_from(["good", "repeat", "invalid", "nan", "bad_crc", "B", "bit", "garbage"]), min_size=1, max_size=40
+)
+
+
+@settings(max_examples=80)
+@given(reads=KVH_READS)
+def test_reads_of_one_frame_each_equal_the_whole_stream_at_once(reads):
+    """The usual read is one whole frame with nothing held back (the lexer's shortcut); any mix of such reads
+    with damaged, repeated, invalid and other frames and garbage gives the frames and counters of one read."""
+    chunks, seq = [], 0
+    for kind in reads:
+        seq += kind != "repeat"
+        chunks.append({
+            "good": lambda: kvh_frame(seq), "repeat": lambda: kvh_frame(seq), "B": lambda: kvh_frame(seq, "B"),
+            "invalid": lambda: kvh_frame(seq, valid=(True, False, True)), "nan": lambda: kvh_frame(seq, rate_x_dph=math.nan),
+            "bad_crc": lambda: _damaged(kvh_frame(seq)), "bit": lambda: bit_reply(bytes(6)), "garbage": lambda: b"\xfe\x81\x00",
+        }[kind]())  # fmt: skip
+    whole, each = Lexer(KVH), Lexer(KVH)
+    got_whole = [(f.raw, f.flags, f.axis_valid) for f in whole.feed(b"".join(chunks))]
+    got_each = [(f.raw, f.flags, f.axis_valid) for chunk in chunks for f in each.feed(chunk)]
+    assert got_each == got_whole
+    assert each.counters == whole.counters and each.buffered == whole.buffered
+    assert whole.counters.frames_ok == sum(kind in ("good", "repeat", "invalid", "nan", "B") for kind in reads)
+
+
 # Bytes that make false KVH A/B/C headers. BIT headers are left out: their 8-bit checksum lets one false
 # BIT header in 256 pass and swallow the start of the next frame, a weakness of the KVH format itself.
 KVH_GARBAGE = st.lists(

@@ -104,22 +104,30 @@ class TempHistory:
 
     def add(self, t_s: float, temp_c: float) -> None:
         """One valid temperature at sample time `t_s` (rising)."""
-        block = math.floor(t_s / self.step_s)
-        if block != self._block:
-            self._close()
-            self._block = block
-        self._sum_t += t_s
-        self._sum_c += temp_c
-        self._count += 1
-        self.tail.append(temp_c)
-        if self.last is None and not self.blocks:
-            self.first = (t_s, temp_c)
-        self.last = (t_s, temp_c)
-        self.samples += 1
+        self.extend((t_s,), (temp_c,))
 
     def extend(self, times_s: Iterable[float], temps_c: Iterable[float]) -> None:
+        """Valid temperatures at sample times `times_s` (rising), in order (the daemon adds a few hundred at a
+        time: one loop here, not a call per sample)."""
+        step_s, append = self.step_s, self.tail.append
+        starting = self.last is None and not self.blocks
+        block, sum_t, sum_c, count, added = self._block, self._sum_t, self._sum_c, self._count, 0
         for t_s, temp_c in zip(times_s, temps_c):
-            self.add(t_s, temp_c)
+            index = math.floor(t_s / step_s)
+            if index != block:
+                self._sum_t, self._sum_c, self._count = sum_t, sum_c, count
+                self._close()
+                block, sum_t, sum_c, count = index, 0.0, 0.0, 0
+            sum_t += t_s
+            sum_c += temp_c
+            count += 1
+            append(temp_c)
+            if starting:
+                self.first, starting = (t_s, temp_c), False
+            self.last = (t_s, temp_c)
+            added += 1
+        self._block, self._sum_t, self._sum_c, self._count = block, sum_t, sum_c, count
+        self.samples += added
 
     def _close(self) -> None:
         if self._count:

@@ -76,8 +76,14 @@ class Lexer:
 
     def feed(self, data: bytes) -> list[Frame]:
         """Every frame completed by `data`, in stream order."""
+        if not self._buf and self._fast is not None:  # the usual read: one whole frame, nothing held back
+            got = self._fast(data, 0)
+            if got is not None and got[1] == len(data):  # (as _scan's first step, without its set-up)
+                frame = got[0]
+                self.counters.frame_bytes += got[1]
+                return [frame] if self._account(frame, self._single) else []
         frames: list[Frame] = []
-        if len(data) <= self._slice_len:  # the usual read: a frame or a few, no slicing
+        if len(data) <= self._slice_len:  # a frame or a few, no slicing
             self._buf = self._buf + data if self._buf else bytes(data)
             self._scan(frames)
             return frames

@@ -113,11 +113,22 @@ class Reader:
 
     def _run(self) -> None:
         try:
-            if self._received:
-                self._frame(self._received, time.monotonic())
-                self._received = b""
+            # each pass frames what the pass before read (first, what unitquery read), then reads: one call
+            # fewer a frame than a method to frame each read
+            data, self._received = self._received, b""
+            t_rx_s = time.monotonic()
+            gap_s = 1.0
             poller: select.poll | None = None
-            while not self._stopping.is_set():
+            while True:
+                if data:
+                    self.counters.bytes_in += len(data)
+                    frames = self.lexer.feed(data)
+                    if frames:
+                        self._push(frames, t_rx_s)
+                    if gap_s < COALESCE_GAP_S and len(data) < COALESCE_SMALL_BYTES:
+                        time.sleep(COALESCE_S)
+                if self._stopping.is_set():
+                    return
                 if self.port is None:
                     if not self._reopen():
                         return
@@ -129,14 +140,11 @@ class Reader:
                 try:
                     data = self._read(poller, timeout_ms)
                 except (serial.SerialException, OSError) as error:
+                    data = b""
                     self._lost(error)
                     continue
                 t_rx_s = time.monotonic()
                 gap_s, self.heartbeat_s = t_rx_s - self.heartbeat_s, t_rx_s
-                if data:
-                    self._frame(data, t_rx_s)
-                    if gap_s < COALESCE_GAP_S and len(data) < COALESCE_SMALL_BYTES:
-                        time.sleep(COALESCE_S)
         except BaseException as error:  # the daemon notices a dead reader through `alive` and `error`
             self.error = error
             raise
@@ -155,12 +163,6 @@ class Reader:
         if not data:  # what pyserial says of a USB adapter pulled out
             raise serial.SerialException("device reports readiness to read but returned no data")
         return data
-
-    def _frame(self, data: bytes, t_rx_s: float) -> None:
-        self.counters.bytes_in += len(data)
-        frames = self.lexer.feed(data)
-        if frames:
-            self._push(frames, t_rx_s)
 
     def _push(self, frames: list, t_rx_s: float) -> None:
         frames_in, names = self.counters.frames_in, COUNT_NAMES
