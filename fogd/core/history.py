@@ -124,10 +124,11 @@ class TempHistory:
             append(temp_c)
             if starting:
                 self.first, starting = (t_s, temp_c), False
-            self.last = (t_s, temp_c)
             added += 1
         self._block, self._sum_t, self._sum_c, self._count = block, sum_t, sum_c, count
-        self.samples += added
+        if added:
+            self.last = (t_s, temp_c)
+            self.samples += added
 
     def _close(self) -> None:
         if self._count:
