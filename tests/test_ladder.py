@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import copy
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -70,12 +71,15 @@ def test_linear_truth_plus_noise_is_fitted_linear():
 
 
 @pytest.mark.parametrize("seed", [1, 4])
-def test_two_runs_whose_truth_is_linear_are_fitted_linear(seed):
-    """A heating and a cooling run only: every richer rung fits the noise of the stretches it trains on (seed 4:
-    the static curve scores 0.3 % better than linear, within the spread of their per-fold differences)."""
+def test_two_runs_whose_truth_is_linear_climb_no_further_than_the_static_curve(seed):
+    """A heating and a cooling run only: every richer rung fits the noise of the stretches it trains on. The
+    static curve contains linear and can only win by chance, by little (seed 4: 0.6 % on the folds' mean log
+    ratio, 1.3 standard errors: the rule's one-sided test takes the richer rung so about one time in six)."""
     runs = [make_run(HEAT, ieee952, 2 * seed), make_run(COOL, ieee952, 2 * seed + 1)]
     result = climb(runs, TrainConfig(fit=FitOptions(particles=4, iterations=3, progress=False)))
-    assert result.chosen.rung.name == "linear", result.line()
+    linear = next(s for s in result.scored if s.rung.name == "linear")
+    assert result.chosen.rung.name in ("linear", "static curve"), result.line()
+    assert result.chosen.log_drift > linear.log_drift - 0.01, result.line()
     assert result.folds == "10 time folds (5 stretches of each run, one at a time), 30 blocks apart"
 
 
@@ -119,41 +123,49 @@ def scored(name: str, folds: list[float], method: str = "linear") -> Scored:
                   float(np.std(folds, ddof=1) / np.sqrt(len(folds))), list(folds), 0.0)  # fmt: skip
 
 
-def test_the_simpler_rung_wins_unless_the_richer_is_better_by_more_than_the_spread_of_their_differences():
+def test_the_simpler_rung_wins_unless_the_richer_is_better_by_more_than_the_spread_of_their_ratios():
     hard_and_easy = [1.0, 3.0, 0.5]  # folds of very different difficulty: a standard error of 0.74 on its own
     assert choose([scored("a", hard_and_easy), scored("b", [0.9, 2.9, 0.4])]).rung.name == "b"  # better on every fold
-    assert choose([scored("a", hard_and_easy), scored("b", [0.5, 3.3, 0.2])]).rung.name == "a"  # on two of three
-    assert choose([scored("a", [1.0, 1.0, 1.0]), scored("b", [0.9, 0.9, 0.9]), scored("c", [0.9, 0.8, 0.9])]).rung.name == "b"
+    assert choose([scored("a", hard_and_easy), scored("b", [0.7, 3.3, 0.45])]).rung.name == "a"  # on two of three, not by enough
+    # half the drift on two folds, 10 % more on the hardest: the hard fold does not decide (its pooled drift is
+    # higher, and the spread of the differences, 0.31, is set by it)
+    assert choose([scored("a", hard_and_easy), scored("b", [0.5, 3.3, 0.2])]).rung.name == "b"
+    assert choose([scored("a", [1.0, 1.0, 1.0]), scored("b", [0.9, 0.9, 0.9]), scored("c", [0.8, 0.95, 0.9])]).rung.name == "b"
 
 
-@given(st.integers(2, 6).flatmap(lambda folds: st.lists(st.lists(st.floats(0.0, 10.0), min_size=folds, max_size=folds),
+def mean_log(rung: Scored) -> float:
+    return float(np.mean(np.log(rung.fold_rmse_dph)))
+
+
+@given(st.integers(2, 6).flatmap(lambda folds: st.lists(st.lists(st.floats(1e-3, 10.0), min_size=folds, max_size=folds),
                                                          min_size=1, max_size=5)))  # fmt: skip
 def test_choose_is_the_first_rung_that_improves_on_the_simpler_ones_within_a_paired_standard_error_of_the_best(figures):
     rungs = [scored(str(i), folds) for i, folds in enumerate(figures)]
     chosen = choose(rungs)
-    best = min(rungs, key=lambda s: s.drift_rmse_dph)
-
-    def within(rung: Scored) -> bool:
-        differences = [a - b for a, b in zip(rung.fold_rmse_dph, best.fold_rmse_dph)]
-        return rung.drift_rmse_dph <= best.drift_rmse_dph + float(np.std(differences, ddof=1)) / np.sqrt(len(differences))
 
     def improves(i: int) -> bool:  # on every simpler rung
-        return all(rungs[i].drift_rmse_dph < simpler.drift_rmse_dph for simpler in rungs[:i])
+        return all(mean_log(rungs[i]) < mean_log(simpler) for simpler in rungs[:i])
+
+    best = [s for i, s in enumerate(rungs) if improves(i)][-1]
+
+    def within(rung: Scored) -> bool:
+        logs = np.log(rung.fold_rmse_dph) - np.log(best.fold_rmse_dph)
+        return float(np.mean(logs)) <= float(np.std(logs, ddof=1)) / math.sqrt(len(logs))
 
     at = rungs.index(chosen)
     assert within(chosen) and improves(at)
     assert not any(within(s) and improves(i) for i, s in enumerate(rungs[:at]))
-    assert chosen is rungs[0] or chosen.drift_rmse_dph < rungs[0].drift_rmse_dph  # never worse than the first (linear)
+    assert chosen is rungs[0] or mean_log(chosen) < mean_log(rungs[0])  # never worse than the first (linear)
 
 
-@given(st.integers(2, 6).flatmap(lambda folds: st.lists(st.lists(st.floats(0.0, 10.0), min_size=folds, max_size=folds),
+@given(st.integers(2, 6).flatmap(lambda folds: st.lists(st.lists(st.floats(1e-3, 10.0), min_size=folds, max_size=folds),
                                                          min_size=2, max_size=5)))  # fmt: skip
 def test_no_compensation_is_chosen_only_when_no_rung_is_below_it(figures):
     """Rung 0 is never "within one standard error" of a better rung: below it, the rule is the modelling
     rungs' own among those that improve on it (a rung that does not is never in the running)."""
     nothing, *models = [scored(str(i), folds, NONE if i == 0 else "linear") for i, folds in enumerate(figures)]
     chosen = choose([nothing, *models])
-    better = [s for s in models if s.drift_rmse_dph < nothing.drift_rmse_dph]
+    better = [s for s in models if mean_log(s) < mean_log(nothing)]
     assert chosen is (choose(better) if better else nothing)
 
 

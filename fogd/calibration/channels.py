@@ -179,7 +179,7 @@ def _fit(job: ChannelJob, settings: Settings, result: ChannelFit) -> None:
         result.trained = {result.label: ladder.trained}
         result.chosen = ladder.trained
         result.chosen.document["metrics"]["held_out"] = ladder.held_out()
-        result.chosen.document["training"]["ladder"] = {"rule": "one standard error", "folds": ladder.folds,
+        result.chosen.document["training"]["ladder"] = {"rule": "one standard error of the per-fold ratios", "folds": ladder.folds,
                                                         "rungs": [s.row() for s in ladder.scored]}  # fmt: skip
         result.selection = ladder.table(unit)
         say.out(f"{job.channel}: {ladder.line(unit)}" if job.channel else ladder.line(unit))

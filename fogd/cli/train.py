@@ -83,7 +83,7 @@ def parser() -> ArgumentParser:
         "--method", choices=("ladder", *METHODS, "auto"), default=None,
         help="model family (default: ladder; pso-svr when --inputs or --compare is given); ladder: the simplest of no compensation, linear [temp,rate@50] (IEEE 952), its "
         "static curve, the coil trend over the lag bank and that trend under PSO-SVR that improves on every simpler "
-        "one and whose held-out drift is within one standard error of the best's (no compensation only when it is "
+        "one and whose held-out drift is within one standard error of the best's, compared fold by fold by their ratio (no compensation only when it is "
         "the best: a channel no model improves is passed through, with a warning when nothing is compensated) (leave-one-run-out with three runs or more, else --folds time folds of every run, a lag "
         "apart; it says "
         "what it chose and why in one line, and the model file keeps the estimate); auto: choose the family and the input set by nested held-out error (leave-one-run-out, "
