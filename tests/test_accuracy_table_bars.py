@@ -47,3 +47,13 @@ def test_seeds_do_not_go_with_the_imu_tables(capsys, monkeypatch) -> None:
     with pytest.raises(SystemExit) as raised:
         accuracy_table.main()
     assert raised.value.code == 2 and "--seeds judges the single-axis gyro" in capsys.readouterr().err
+
+
+def test_each_run_is_also_judged_against_no_compensation() -> None:
+    """Issue 33: no default worse than no compensation on any held-out run; the drift over the same run's
+    uncompensated drift, run by run (the floors cancel: both are over the run's noise floor)."""
+    args = argparse.Namespace(calibration=None)
+    rows = {accuracy_table.LADDER: [(score, 0.0) for score in [3.0, 2.0, 5.0, 2.2, 4.0]],
+            "Before compensation": [(before, 0.0) for before in [30.0, 1.0, 50.0, 22.0, 8.0]]}  # fmt: skip
+    judged = accuracy_table.judge(args, rows, True, None)
+    assert judged.against_none == pytest.approx([0.1, 2.0, 0.1, 0.1, 0.5])
