@@ -40,7 +40,7 @@ Usage: python tools/bench_dedicated.py [--quick] [--rounds N] [--rates HZ ...] [
        (also `python tools/bench_daemon.py --dedicated ...`)
   --also-checkout DIR: fogd (demo model) from another checkout too, in the same rounds: a change against the
   commit before it, e.g. `git worktree add --detach /tmp/base REV`. Run it alone (pause other heavy work first) or on an
-  otherwise idle machine (about 45 s per process for the default 3 rounds, plus the waits for idle seconds).
+  otherwise idle machine (about 75 s per process for the default 5 rounds, plus the waits for idle seconds).
 """
 
 from __future__ import annotations
@@ -65,7 +65,7 @@ from fogd.core.history import TempHistory
 from fogd.serving import thermalstate
 
 RATES = (1000.0, 5000.0)
-ROUNDS = 3
+ROUNDS = 5  # per-round ratios to the relay spanned 2.2-4.5x on this VM over three rounds: a median of five is steadier
 WINDOW_S = 5.0
 LEAD_IN_S = 1.0
 OTHER_MAX = 0.1  # of a core: a window where other work took more is left out of the medians if a clean one exists
