@@ -1,5 +1,5 @@
 """tools/accuracy_table.py --imu, shrunk (two calibration runs, one held out, 1 Hz, a tiny swarm): its z gyro is the
-single-axis table's gyro, trained and replayed to the same figure; every channel gets its table, the
+single-axis table's gyro, its ladder climbed and replayed to the same figure and the same choice; every channel gets its table, the
 accelerometers' in g."""
 
 from __future__ import annotations
@@ -13,7 +13,8 @@ import pytest
 
 from fogd.calibration.models import FitOptions
 from fogd.calibration.replay import replay, replay_table
-from fogd.calibration.training import TrainConfig, train
+from fogd.calibration.ladder import climb
+from fogd.calibration.training import TrainConfig
 from fogd.core.columns import CHANNELS
 from fogd.core.inputs import DEFAULT_INPUTS_TEXT, parse_inputs
 from fogd.simulation.simulator import params_for
@@ -50,10 +51,13 @@ def test_every_channel_is_tabled_and_z_as_the_single_axis_table_trains_it(shrunk
     params = params_for("navigation", "lumped", sensor_resolution_c=0.0625, sensor_rate_hz=4.0)
     runs = [accuracy_table.simulated_run(name, 1 + i, 1.0, params) for i, name in enumerate(accuracy_table.CALIBRATION)]
     held_out = accuracy_table.simulated_run("fast-cycle", 101, 1.0, params)
-    config = TrainConfig(inputs=parse_inputs(DEFAULT_INPUTS_TEXT), fit=FitOptions(seed=1, progress=False, **TINY))
-    alone = replay_table(held_out, replay(train(runs, config).model, held_out), 100.0)
-    (ratio, _), = rows["rate_z_dph"][accuracy_table.DEFAULT]
+    config = TrainConfig(method="ladder", inputs=parse_inputs(DEFAULT_INPUTS_TEXT),
+                         fit=FitOptions(seed=1, progress=False, patience=10, **TINY))  # fmt: skip
+    ladder = climb(runs, config)
+    alone = replay_table(held_out, replay(ladder.trained.model, held_out), 100.0)
+    (ratio, _), = rows["rate_z_dph"][accuracy_table.LADDER]
     assert ratio == pytest.approx(alone.after.rmse_dph / alone.best.rmse_dph, rel=1e-9)
+    assert rows["rate_z_dph"]["_ladder_choice"] == [ladder.chosen.rung.name]
     for channel in CHANNELS:  # the accelerometers' floors are in g (micro-g), the gyros' in deg/h (milli-deg/h)
         (floor,) = rows[channel]["_floor"]
         assert (1e-7 < floor < 1e-4) if channel.endswith("_g") else (1e-4 < floor < 1e-2), (channel, floor)
@@ -61,6 +65,7 @@ def test_every_channel_is_tabled_and_z_as_the_single_axis_table_trains_it(shrunk
     printed = capsys.readouterr().out
     assert "| Noise floor, g |" in printed and printed.count("| Noise floor, deg/h |") == 3
     assert printed.count("| Noise floor, g |") == 3 and "within 1.3x" in printed
+    assert printed.count("fogd-train's default: the ladder** chose") == len(CHANNELS)
 
 
 def test_one_job_or_two_give_the_same_tables(shrunk):
