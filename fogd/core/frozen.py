@@ -28,6 +28,7 @@ from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
+from fogd.core import straightline
 from fogd.core.inputs import InputSpec, clamp_rows, shifted_columns
 from fogd.core.outside_range import OutsideRange, point_dot
 
@@ -458,11 +459,17 @@ class FrozenModel:
             plan = self._one_plan()
         if plan is False:
             return self._predict_one_otherwise(x)
-        point, columns, first, y_mean, y_scale = plan
+        row, point, columns, first, y_mean, y_scale = plan
         x = tuple(x)
         last = self.__dict__.get("_last_point")
         if last is not None and last[0] == x:  # quantised inputs repeat sample after sample: exact reuse
             return last[1]
+        if row is not None:  # the loop below, written out (fogd.core.straightline): the same floats
+            result = row(x)
+            if result[1]:
+                return (self.beyond_one(x), True) if self._beyond else result
+            object.__setattr__(self, "_last_point", (x, result))
+            return result
         clamped = False
         xs = []
         shift = 0.0
@@ -485,9 +492,10 @@ class FrozenModel:
         return result
 
     def _one_plan(self) -> tuple | bool:
-        """What predict_one's Python-float path reads, looked up once: the evaluator's `point`, each column's
-        (low, high, mean, scale, moved with the temperature?), the temperature column whose clip moves them,
-        y_mean and y_scale; False for a model that takes another path (`_predict_one_otherwise`)."""
+        """What predict_one's Python-float path reads, looked up once: the straight-line row function
+        (fogd.core.straightline; None where the model has none), the evaluator's `point`, each column's (low,
+        high, mean, scale, moved with the temperature?), the temperature column whose clip moves them, y_mean and
+        y_scale; False for a model that takes another path (`_predict_one_otherwise`)."""
         point = getattr(self.evaluator, "point", None)
         rows = self.__dict__.get("_rows")
         if rows is None:
@@ -497,7 +505,9 @@ class FrozenModel:
         else:
             shifted = self._shifted
             columns = tuple((*bounds, column in shifted) for column, bounds in enumerate(zip(*self._point_constants())))
-            plan = (point, columns, shifted[0] if shifted else None, self.y_mean, self.y_scale)
+            first = shifted[0] if shifted else None
+            row = straightline.row_function(self.evaluator, columns, first, self.y_mean, self.y_scale, self._beyond)
+            plan = (row, point, columns, first, self.y_mean, self.y_scale)
         object.__setattr__(self, "_one", plan)
         return plan
 
