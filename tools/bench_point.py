@@ -13,7 +13,8 @@ with its training-RMSE fitness), fitted the way fogd-train fits them, the same t
     with chunks of 4096 (what replay and the daemon under load pay), per sample.
 Then fogd-train's default model (1b) and, in the same run, that model on all six channels of an IMU through
 the ChannelCompensator on the daemon's path for each batch size (process_row up to SCALAR_CHUNK frames, process beyond,
-as fogd-replay too), beside it on one channel (1c; issue 12's six-vs-one).
+as fogd-replay too), beside it on one channel (1c; issue 12's six-vs-one); and FrozenModel.predict_one run cold, the
+row written out as straight-line Python against its loop (1d; issue 37).
 Target: fast per point >= 20x faster than sklearn per point, with output equal to 1e-9 deg/h.
 
 Usage: python tools/bench_point.py [--quick]
@@ -22,13 +23,16 @@ Usage: python tools/bench_point.py [--quick]
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
+from pathlib import Path
 
 import numpy as np
 from bench_common import machine, print_table, sim_run, trained_model, us, verdict
 
 import fogd.core.estimator as fogd_estimator
 from fogd.core.channels import ChannelCompensator
+from fogd.core import modelfile
 from fogd.core.columns import CHANNELS
 from fogd.core.compensator import Compensator
 from fogd.core.estimator import SCALAR_CHUNK, TempRateEstimator
@@ -37,6 +41,8 @@ from fogd.core.inputs import DEFAULT_INPUTS_TEXT
 METHODS = ("ls-poly", "rbf-nn", "pso-svr")
 TARGET_RATIO = 20.0
 TOLERANCE_DPH = 1e-9
+DEMO_MODEL = Path(__file__).resolve().parents[1] / "fogd" / "data" / "demo-model.json"
+COLD_SWEEP_BYTES = 64 << 20  # larger than any cache of the machines fogd runs on
 
 
 def model_terms(trained) -> str:
@@ -217,6 +223,52 @@ def default_rows(run, points: int, swarm: tuple[int, int], paper_comp1_s: float,
         rows,
     )  # fmt: skip
     channel_rows(trained, temps, run.rate_hz)
+    cold_rows({"bundled demo model": modelfile.load(DEMO_MODEL), "fogd-train's default (1b)": trained.model},
+              min(points, 2000))  # fmt: skip
+
+
+def cold_rows(models: dict, calls: int) -> None:
+    """FrozenModel.predict_one warm (the best of three passes over the rows) and cold (each call after a sweep over
+    64 MB flushes the caches, timed by the thread's CPU clock: median, less an empty call's): the model's row
+    written out (fogd.core.straightline) against predict_one's loop over the same model, each row a new one."""
+    sweep = np.ones(COLD_SWEEP_BYTES // 8)
+
+    def cold_us(function, rows: list[list[float]]) -> float:
+        times = []
+        for row in rows:
+            sweep.sum()
+            start = time.thread_time_ns()
+            function(row)
+            times.append(time.thread_time_ns() - start)
+        return float(np.median(times)) / 1e3
+
+    def warm_us(function, rows: list[list[float]]) -> float:
+        start = time.perf_counter()
+        for row in rows:
+            function(row)
+        return (time.perf_counter() - start) / len(rows) * 1e6
+
+    table = []
+    for label, model in models.items():
+        rng = np.random.default_rng(0)
+        low, high = np.asarray(model.domain_min, dtype=float), np.asarray(model.domain_max, dtype=float)
+        rows = (low + (high - low) * rng.uniform(0.1, 0.9, (calls, len(model.inputs)))).tolist()  # each row new
+        plan = model._one_plan()
+        loop = dataclasses.replace(model)
+        object.__setattr__(loop, "_one", (None, *plan[1:]) if plan else plan)
+        empty = cold_us(lambda row: None, rows)
+        straight = cold_us(model.predict_one, rows) - empty
+        looped = cold_us(loop.predict_one, rows) - empty
+        warm = [min(warm_us(function, rows) for _ in range(3)) for function in (loop.predict_one, model.predict_one)]
+        table.append([label, "yes" if plan and plan[0] is not None else "no (the loop)", f"{warm[0]:.2f}", f"{warm[1]:.2f}",
+                      f"{warm[0] / warm[1]:.2f}x", f"{looped:.1f}", f"{straight:.1f}", f"{looped / straight:.2f}x"])  # fmt: skip
+    print_table(
+        "1d. FrozenModel.predict_one, microseconds per call, warm (rows one after another) and cold (caches flushed before "
+        "each call, the thread's CPU): predict_one's loop against the row written out as straight-line Python "
+        "(fogd.core.straightline)",
+        ["model", "written out", "warm loop", "warm straight", "warm ratio", "cold loop", "cold straight", "cold ratio"],
+        table,
+    )  # fmt: skip
 
 
 def channel_rows(trained, temps: np.ndarray, rate_hz: float) -> None:

@@ -1,12 +1,14 @@
 """A frozen model's one row written out as straight-line Python: the daemon's per-sample sum, run cold.
 
-On a box idle between frames each frame's Python runs with cold caches (issue 37), and FrozenModel.predict_one
-loops over tuples: a clamp per column, then the evaluator's `point` (several calls, a loop's bytecodes per term,
-a tuple unpacked per factor). `row_function` writes that clamp, scaling, point and output scaling out as one
-function with the model's constants in its code: several times fewer bytecodes, far fewer objects touched
-(tools/bench_point.py 1d: cold, each call after the caches are flushed). The float operations are the very same,
-in the very same order, so the result is the same float, bit for bit: x ** 0 is 1.0 and 1.0 * x is x exactly,
-and a sum of squares starting from 0.0 or not is the same (d * d is never -0.0).
+Per sample FrozenModel.predict_one loops over tuples: a clamp per column, then the evaluator's `point` (several
+calls, a loop's bytecodes per term, a tuple unpacked per factor). `row_function` writes that clamp, scaling,
+point and output scaling out as one function with the model's constants in its code: far fewer bytecodes and
+objects touched (tools/bench_point.py 1d times both, warm and with the caches flushed before each call). The
+float operations are the very same, in the very same order, so the result is the same float, bit for bit: x ** 0
+is 1.0 and 1.0 * x is x exactly, and a sum of squares starting from 0.0 or not is the same (d * d is never -0.0).
+On the daemon's row path (the bundled demo model) a frame's lexing, compensation, encoding and write went from
+22-24 to 17-19 us in process; on a dedicated box (tools/bench_dedicated.py, issue 37) the change was within
+that benchmark's noise: there a frame's cost is mostly not its Python's.
 
 The source holds nothing a model file could smuggle in: fixed names, integer indices and powers, and the
 model's constants as `repr` of finite floats (which reads back as the same float). Anything else (a kernel
