@@ -23,6 +23,7 @@ from typing import Callable, Sequence
 
 MAX_TERMS = 400  # beyond this many terms the function's source outgrows what it saves
 
+
 class NotStraight(ValueError):
     """The evaluator has a part this module does not write out."""
 
