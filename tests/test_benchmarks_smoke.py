@@ -21,7 +21,6 @@ import quantisation_bound  # noqa: E402
 @pytest.mark.parametrize(
     "script, table",
     [
-        ("bench_point.py", "1. Per-point compensation cost"),
         ("bench_replay.py", "2a. Replay compensation"),
         ("bench_daemon.py", "3b-d. Latency"),
         ("bench_train.py", "4. Training wall time"),
@@ -46,6 +45,8 @@ def test_the_design_comparison_runs_its_single_thread_prototype():
 
 
 def test_bench_runs_the_sections_it_is_given():
+    """tools/bench.py runs the sections it is given, each in its own quick mode: here bench_point.py's (which
+    no other test runs)."""
     done = subprocess.run(
         [sys.executable, str(TOOLS / "bench.py"), "--quick", "--only", "point"], capture_output=True, text=True, timeout=600
     )

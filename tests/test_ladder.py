@@ -162,11 +162,22 @@ def test_choose_is_the_first_rung_that_improves_on_the_simpler_ones_within_a_pai
                                                          min_size=2, max_size=5)))  # fmt: skip
 def test_no_compensation_is_chosen_only_when_no_rung_is_below_it(figures):
     """Rung 0 is never "within one standard error" of a better rung: below it, the rule is the modelling
-    rungs' own among those that improve on it (a rung that does not is never in the running)."""
+    rungs' own among those whose pooled drift improves on it (a rung that does not is never in the running)."""
     nothing, *models = [scored(str(i), folds, NONE if i == 0 else "linear") for i, folds in enumerate(figures)]
     chosen = choose([nothing, *models])
-    better = [s for s in models if mean_log(s) < mean_log(nothing)]
+    better = [s for s in models if s.drift_rmse_dph < nothing.drift_rmse_dph]
     assert chosen is (choose(better) if better else nothing)
+    assert chosen is nothing or chosen.drift_rmse_dph < nothing.drift_rmse_dph
+
+
+def test_a_rung_that_removes_the_ramps_drift_beats_no_compensation_though_it_adds_noise_where_nothing_moves():
+    """Nine folds where nothing moves (no compensation 1.0, linear 1.5: its noise) and one ramp (10.0 against
+    2.0): linear's pooled drift is below rung 0's, though the mean of its log ratios is above."""
+    nothing = scored("no compensation", [1.0] * 9 + [10.0], NONE)
+    linear = scored("linear", [1.5] * 9 + [2.0])
+    assert mean_log(linear) > mean_log(nothing) and linear.drift_rmse_dph < nothing.drift_rmse_dph
+    assert choose([nothing, linear]) is linear
+    assert choose([nothing, scored("linear", [1.5] * 9 + [11.0])]) is nothing
 
 
 @settings(max_examples=4, deadline=None)
