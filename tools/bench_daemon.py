@@ -611,7 +611,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--dedicated", action="store_true",
                         help="run tools/bench_dedicated.py with the other arguments: a dedicated, otherwise idle box")
     parser.add_argument("--strict", action="store_true", help="exit 1 when a target is missed")
-    parser.add_argument("--quick", action="store_true", help="short steps and low rates only (smoke test)")
+    parser.add_argument("--quick", action="store_true", help="short steps, low rates and one turn (smoke test)")
     parser.add_argument("--switch-interval-s", type=float, default=None,
                         help="also run fogd with sys.setswitchinterval(S) (an experiment; Python's default is 0.005)")
     parser.add_argument("--model", default=str(DEMO_MODEL), help="model file for fogd (default: the bundled demo model)")
@@ -665,7 +665,7 @@ def main(argv: list[str] | None = None) -> int:
         }
         if args.switch_interval_s:
             commands[f"fogd, switch interval {args.switch_interval_s * 1e3:g} ms"] = fogd_command(args.model, args.switch_interval_s)
-        results = measure(commands, rates, step_s, latency_s, cpu_s)
+        results = measure(commands, rates, step_s, latency_s, cpu_s, turns=1 if args.quick else TURNS)
     rows = []
     for index, hz in enumerate(rates):
         row = [f"{hz:,.0f}"]
