@@ -51,9 +51,8 @@ def frozen_model(ev, d: int, policy: str, rng: np.random.Generator) -> FrozenMod
 def the_loop(model: FrozenModel) -> FrozenModel:
     """The same model served by predict_one's loop (its plan without the written-out row)."""
     twin = FrozenModel(**{name: getattr(model, name) for name in model.__dataclass_fields__})
-    plan = twin._one_plan()
-    assert plan[0] is not None, "the model under test has a straight-line row"
-    object.__setattr__(twin, "_one", (None, *plan[1:]))
+    assert straightline.written_out(model._one_plan()), "the model under test has a straight-line row"
+    assert not straightline.written_out(twin._one_plan(straight=False))
     return twin
 
 
@@ -89,20 +88,20 @@ def test_the_default_trained_form_is_written_out_and_names_only_its_own_locals()
     its source's names are its arguments, temporaries and `exp`, nothing a model's numbers could make."""
     rng = np.random.default_rng(5)
     model = frozen_model(evaluator("svr", 6, rng, 5, (0,), True), 6, "trend", rng)
-    plan = model._one_plan()
-    source = straightline.row_source(model.evaluator, plan[2], plan[3], model.y_mean, model.y_scale, True)
+    columns, first = model.row_columns()
+    source = straightline.row_source(model.evaluator, columns, first, model.y_mean, model.y_scale, True)
     names = {token.string for token in tokenize.generate_tokens(io.StringIO(source).readline) if token.type == tokenize.NAME}
     allowed = {"def", "row", "x", "if", "else", "return", "or", "True", "exp", "shift", "clamped", "kernel", "trend",
                "q", "value"}  # fmt: skip
     assert {name for name in names if not name[0] in "xuvd" or not name[1:].lstrip("x").isdigit()} <= allowed
-    assert plan[0] is not None
+    assert straightline.written_out(model._one_plan())
 
 
 @pytest.mark.parametrize("bad", [math.inf, -math.inf, math.nan])
 def test_a_non_finite_constant_is_left_to_the_loop(bad):
     rng = np.random.default_rng(1)
     model = frozen_model(Linear(np.array([bad, 1.0]), 0.0), 2, "clamp", rng)
-    assert model._one_plan()[0] is None
+    assert not straightline.written_out(model._one_plan())
     assert model.predict_one([20.0, 0.001])[1] is False
 
 
@@ -113,6 +112,6 @@ def test_a_kernel_large_enough_for_numpy_and_a_huge_trend_are_left_to_the_loop()
     small = Polynomial(rng.integers(0, 3, size=(5, 2)), rng.normal(size=5), 0.0)
     for ev, written in ((large, False), (huge, False), (small, True)):
         model = frozen_model(ev, 2, "clamp", rng)
-        assert (model._one_plan()[0] is not None) == written
+        assert straightline.written_out(model._one_plan()) == written
         value, _ = model.predict_one([20.0, 0.001])
         assert value == pytest.approx(float(model.predict(np.array([[20.0, 0.001]]))[0][0]), rel=1e-12)

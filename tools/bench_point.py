@@ -32,7 +32,7 @@ from bench_common import machine, print_table, sim_run, trained_model, us, verdi
 
 import fogd.core.estimator as fogd_estimator
 from fogd.core.channels import ChannelCompensator
-from fogd.core import modelfile
+from fogd.core import modelfile, straightline
 from fogd.core.columns import CHANNELS
 from fogd.core.compensator import Compensator
 from fogd.core.estimator import SCALAR_CHUNK, TempRateEstimator
@@ -253,14 +253,13 @@ def cold_rows(models: dict, calls: int) -> None:
         rng = np.random.default_rng(0)
         low, high = np.asarray(model.domain_min, dtype=float), np.asarray(model.domain_max, dtype=float)
         rows = (low + (high - low) * rng.uniform(0.1, 0.9, (calls, len(model.inputs)))).tolist()  # each row new
-        plan = model._one_plan()
         loop = dataclasses.replace(model)
-        object.__setattr__(loop, "_one", (None, *plan[1:]) if plan else plan)
+        loop._one_plan(straight=False)
         empty = cold_us(lambda row: None, rows)
         straight = cold_us(model.predict_one, rows) - empty
         looped = cold_us(loop.predict_one, rows) - empty
         warm = [min(warm_us(function, rows) for _ in range(3)) for function in (loop.predict_one, model.predict_one)]
-        table.append([label, "yes" if plan and plan[0] is not None else "no (the loop)", f"{warm[0]:.2f}", f"{warm[1]:.2f}",
+        table.append([label, "yes" if straightline.written_out(model._one_plan()) else "no (the loop)", f"{warm[0]:.2f}", f"{warm[1]:.2f}",
                       f"{warm[0] / warm[1]:.2f}x", f"{looped:.1f}", f"{straight:.1f}", f"{looped / straight:.2f}x"])  # fmt: skip
     print_table(
         "1d. FrozenModel.predict_one, microseconds per call, warm (rows one after another) and cold (caches flushed before "

@@ -454,62 +454,71 @@ class FrozenModel:
 
     def predict_one(self, x: Sequence[float]) -> tuple[float, bool]:
         """`predict` for one row of Python floats: (thermal error in deg/h, True if an input was clamped)."""
-        plan = self.__dict__.get("_one")
-        if plan is None:
-            plan = self._one_plan()
-        if plan is False:
+        row = self.__dict__.get("_one")
+        if row is None:
+            row = self._one_plan()
+        if row is False:
             return self._predict_one_otherwise(x)
-        row, point, columns, first, y_mean, y_scale = plan
         x = tuple(x)
         last = self.__dict__.get("_last_point")
         if last is not None and last[0] == x:  # quantised inputs repeat sample after sample: exact reuse
             return last[1]
-        if row is not None:  # the loop below, written out (fogd.core.straightline): the same floats
-            result = row(x)
-            if result[1]:
-                return (self.beyond_one(x), True) if self._beyond else result
-            object.__setattr__(self, "_last_point", (x, result))
-            return result
-        clamped = False
-        xs = []
-        shift = 0.0
-        if first is not None:  # clamp_rows, in Python floats (as `_clamp_one`, inline: the daemon's hot path)
-            value, (low, high, _, _, _) = x[first], columns[first]
-            shift = (low if value < low else high if value > high else value) - value
-        for value, (low, high, mean, scale, moves) in zip(x, columns):
-            if moves:
-                used = value + shift
-            else:
-                used = low if value < low else high if value > high else value  # np.clip; NaN stays NaN
-            if used != value:
-                clamped = True
-            xs.append((used - mean) / scale)
-        if clamped and self._beyond:
-            return self.beyond_one(x), True
-        result = (y_mean + y_scale * point(xs), clamped)
-        if not clamped:  # (NaN inputs count as clamped, so a remembered row never holds one)
-            object.__setattr__(self, "_last_point", (x, result))
+        result = row(x)
+        if result[1]:  # (NaN inputs count as clamped, so a remembered row never holds one)
+            return (self.beyond_one(x), True) if self._beyond else result
+        object.__setattr__(self, "_last_point", (x, result))
         return result
 
-    def _one_plan(self) -> tuple | bool:
-        """What predict_one's Python-float path reads, looked up once: the straight-line row function
-        (fogd.core.straightline; None where the model has none), the evaluator's `point`, each column's (low,
-        high, mean, scale, moved with the temperature?), the temperature column whose clip moves them, y_mean and
-        y_scale; False for a model that takes another path (`_predict_one_otherwise`)."""
+    def _one_plan(self, straight: bool = True) -> Callable[[tuple[float, ...]], tuple[float, bool]] | bool:
+        """predict_one's row function, made once: the row written out as straight-line Python where it can be
+        (fogd.core.straightline; with `straight` False, never), else `_loop_row`; False for a model that takes
+        another path (`_predict_one_otherwise`)."""
         point = getattr(self.evaluator, "point", None)
         rows = self.__dict__.get("_rows")
         if rows is None:
             rows = self._row_path()
         if point is None or rows is not False:
-            plan: tuple | bool = False
+            plan: Callable | bool = False
         else:
-            shifted = self._shifted
-            columns = tuple((*bounds, column in shifted) for column, bounds in enumerate(zip(*self._point_constants())))
-            first = shifted[0] if shifted else None
-            row = straightline.row_function(self.evaluator, columns, first, self.y_mean, self.y_scale, self._beyond)
-            plan = (row, point, columns, first, self.y_mean, self.y_scale)
+            columns, first = self.row_columns()
+            plan = (straight and straightline.row_function(self.evaluator, columns, first, self.y_mean, self.y_scale,
+                                                           self._beyond)) or self._loop_row(point, columns, first)  # fmt: skip
         object.__setattr__(self, "_one", plan)
         return plan
+
+    def row_columns(self) -> tuple[tuple[tuple[float, float, float, float, bool], ...], int | None]:
+        """Each column's (low, high, mean, scale, moved with the temperature?) and the temperature column whose
+        clip moves them (clamp_rows; None: no column moves)."""
+        shifted = self._shifted
+        columns = tuple((*bounds, column in shifted) for column, bounds in enumerate(zip(*self._point_constants())))
+        return columns, (shifted[0] if shifted else None)
+
+    def _loop_row(self, point: Callable[[list[float]], float], columns: tuple, first: int | None) -> Callable:
+        """The row function as a loop over the columns: clamp_rows in Python floats, scaling, the evaluator's
+        `point` and output scaling; a clamped row under another policy than the clamp is (0.0, True), left to
+        predict_one (as straightline's rows)."""
+        y_mean, y_scale, beyond = self.y_mean, self.y_scale, self._beyond
+
+        def looped_row(x: tuple[float, ...]) -> tuple[float, bool]:
+            clamped = False
+            xs = []
+            shift = 0.0
+            if first is not None:
+                value, (low, high, _, _, _) = x[first], columns[first]
+                shift = (low if value < low else high if value > high else value) - value
+            for value, (low, high, mean, scale, moves) in zip(x, columns):
+                if moves:
+                    used = value + shift
+                else:
+                    used = low if value < low else high if value > high else value  # np.clip; NaN stays NaN
+                if used != value:
+                    clamped = True
+                xs.append((used - mean) / scale)
+            if clamped and beyond:
+                return 0.0, True
+            return y_mean + y_scale * point(xs), clamped
+
+        return looped_row
 
     def _predict_one_otherwise(self, x: Sequence[float]) -> tuple[float, bool]:
         """predict_one of a large kernel model (its trend and kernel in a few numpy calls, and the policy) or of

@@ -22,6 +22,7 @@ import math
 from typing import Callable, Sequence
 
 MAX_TERMS = 400  # beyond this many terms the function's source outgrows what it saves
+_FILENAME = "<straight-line "  # the written functions' co_filename begins so (`written_out`)
 
 
 class NotStraight(ValueError):
@@ -133,9 +134,14 @@ def _indent(lines: list[str]) -> list[str]:
     return ["    " + line for line in lines]
 
 
+def written_out(function: Callable) -> bool:
+    """True for a function this module wrote."""
+    return getattr(getattr(function, "__code__", None), "co_filename", "").startswith(_FILENAME)
+
+
 def _compiled(source: str, name: str, label: str) -> Callable:
     namespace: dict = {"exp": math.exp, "__builtins__": {}}
-    exec(compile(source, f"<straight-line {label}>", "exec"), namespace)  # noqa: S102 (numbers only: module docstring)
+    exec(compile(source, f"{_FILENAME}{label}>", "exec"), namespace)  # noqa: S102 (numbers only: module docstring)
     return namespace[name]
 
 
