@@ -19,15 +19,23 @@ time, each one of
     inv:W     causal: ma:W through the inverse of the noise-dithered staircase (the expected reading as a
               function of the temperature, Gaussian noise then the quantiser); exploratory: the sensor's
               noise is taken as known from the simulation (inv:W:SIGMA assumes SIGMA C instead)
-and `+pre:TAU` after any of them puts a causal first-order lag of TAU s in front of the bank (fitted on the
-same lag of the fit temperature, so its delay is compensated). `--ridge` adds a ridge on the trend's scaled
+`+deq` after any of them runs it through fogd.core.dequantise's causal estimate at the sensor's resolution (the
+parabola through the last three crossings, as the daemon serves a whole-degree sensor), `+deqfb` through the
+mean of that estimate run forwards and backwards (what fogd-train fits it on), and `+pre:TAU` puts a causal
+first-order lag of TAU s in front of the bank (fitted on the same lag of the fit temperature, so its delay is
+compensated). A case is FIT/SERVE, or FIT/SERVE/truth to fit the calibration runs' true thermal error. `--ridge` adds a ridge on the trend's scaled
 coefficients (`loro`: its strength chosen by leave-one-calibration-run-out drift about each run's mean);
 `--play WIDTH[@TAU]` adds a play operator (fogd.core.play) of a TAU s lag of the temperature as an input,
 `--rate-prior smooth` adds fogd-train's default prior on the lags' rate coefficients (plain least squares
 without it), `--target truth` fits the calibration runs' true thermal error instead of the measured rate (no gyro noise),
-`--calibration-copies N` records each calibration programme N times (the first as the accuracy table does)
-and `--hysteresis-dph 0` simulates the gyro without its play hysteresis. Besides each case's figures: the
-trend's drift RMSE on the calibration blocks (fit) and left out run by run (loro).
+`--calibration-copies N` records each calibration programme N times (the first as the accuracy table does),
+`--five-run` calibrates on the KVH guide's five-run programme (tools/accuracy_table.py --five-run) and
+`--hysteresis-dph 0` simulates the gyro without its play hysteresis. Besides each case's figures: the
+trend's drift RMSE on the calibration blocks (fit) and left out run by run (loro). `--markdown PATH` adds a
+table of each case's worst run per seed and writes what is printed as a results page
+(docs/results/fine-sensor.md, written by the first command below).
+
+    python tools/trend_diagnostic.py --five-run --rate-prior smooth --seed 1 --seed 2 --seed 3 --seed 4 --seed 5 --case read/read --case read/read/truth --case noisy/noisy --case quant/quant --case quant+deq/quant+deq --case read+deq/read+deq --case read+deqfb/read+deq --markdown docs/results/fine-sensor.md
 
     python tools/trend_diagnostic.py --case read/read --case true/true --case true/read
     python tools/trend_diagnostic.py --inputs temp,lags@10..3000/7 --case true/true --case read/read --play '' --play 2
@@ -40,6 +48,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 
 import numpy as np
 
@@ -56,14 +65,18 @@ from fogd.core.inputs import (
     shifted_columns,
     temperature_columns,
 )
+from fogd.core.dequantise import DEFAULT_PACE, dequantise_batch, smoothed_batch
 from fogd.core.lag import lag_batch
 from fogd.core.play import play_batch
 from fogd.simulation.profiles import builtin
+from fogd.errors import FogdError
 from fogd.simulation.simulator import Simulation, params_for
 
-CALIBRATION = ("paper-train", "cooling", "cycle")  # as tools/accuracy_table.py
-HELD_OUT = ("paper-test", "cool-40-to-0", "fast-ramp", "soak-after-ramp", "fast-cycle")
+from accuracy_table import CALIBRATION, FIVE_RUN, HELD_OUT, physics_setting  # tools/, beside this file
+from bench_common import captured_stdout, results_header, write_results_page
+
 SETTLE_S = 600.0
+TARGETS = ("rate", "truth")
 RIDGES = (0.0, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
 
 
@@ -89,6 +102,9 @@ class SimRun:
 def temperature(run: SimRun, spec: str) -> np.ndarray:
     """The temperature `spec` (module docstring) of a run."""
     base, _, pre = spec.partition("+pre:")
+    base, dequantise, backwards = base.partition("+deq")
+    if backwards not in ("", "fb"):
+        raise SystemExit(f"unknown temperature {spec!r}")
     name, _, value = base.partition(":")
     if name == "true":
         out = run.true_c
@@ -117,6 +133,9 @@ def temperature(run: SimRun, spec: str) -> np.ndarray:
         out = spline_c(run)
     else:
         raise SystemExit(f"unknown temperature {spec!r}")
+    if dequantise:  # causal as the daemon serves it, or forwards and backwards as fogd-train fits it
+        estimate = smoothed_batch if backwards else dequantise_batch
+        out = estimate(out, run.resolution_c, run.rate_hz, DEFAULT_PACE)
     return lag_batch(out, float(pre), run.rate_hz) if pre else out
 
 
@@ -255,6 +274,18 @@ def case_scores(calibration: list[SimRun], held_out: list[SimRun], fit_spec: str
     return out, trend
 
 
+PAGE_TITLE = "What limits the fine sensor (tools/trend_diagnostic.py)"
+PAGE_INTRO = """The default's coil trend alone (no SVR), fitted on the calibration runs' 100 s blocks and replayed on the
+accuracy table's five held-out runs, with one thing changed at a time: what the trend is fitted to (the
+measured rate, or the true thermal error: no gyro noise) and the temperature its inputs are computed from at fit
+and at serve time (`read`: the readings as the daemon sees them; `noisy`: the true temperature with the sensor's
+noise, sampled and held, no steps; `quant`: the true temperature in the sensor's 1/16 C steps, no noise;
+`+deq`: through fogd.core.dequantise's causal estimate, `+deqfb` its forwards-and-backwards mean, as fogd-train
+fits a whole-degree sensor). Each cell is the worst held-out run's drift over the noise floor, as in the accuracy
+table (the lines first give every run, then each coil's table the worst per seed). A case near 1.0 says what is
+left when that one thing is removed."""
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seed", type=int, action="append", help="seeds (repeatable; default 1 and 2)")
@@ -263,40 +294,87 @@ def main() -> None:
     parser.add_argument("--resolution-c", type=float, default=0.0625)
     parser.add_argument("--sensor-hz", type=float, default=4.0)
     parser.add_argument("--inputs", default=DEFAULT_INPUTS_TEXT)
-    parser.add_argument("--case", action="append", help="FIT/SERVE temperatures, e.g. read/read (repeatable)")
+    parser.add_argument("--case", action="append",
+                        help="FIT/SERVE temperatures, e.g. read/read, or FIT/SERVE/truth (repeatable)")
     parser.add_argument("--hysteresis-dph", type=float, default=None, help="the gyro's play (default: the preset's)")
     parser.add_argument("--play", action="append", help="WIDTH@TAU: add a play operator input (repeatable: one case each)")
-    parser.add_argument("--target", choices=("rate", "truth"), default="rate",
-                        help="fit the calibration runs' measured rate, or their true thermal error (no gyro noise)")
+    parser.add_argument("--target", choices=TARGETS, default="rate",
+                        help="fit the calibration runs' measured rate, or their true thermal error (no gyro noise), "
+                             "where a case does not say")
     parser.add_argument("--ridge", default="0", help="ridge strength on the scaled trend, or 'loro'")
     parser.add_argument("--rate-prior", choices=PRIORS, default="none",
                         help="the coil trend's prior on its lags' rate coefficients, as fogd-train's --rate-prior "
                              "(default none here: plain least squares, as before the prior)")
     parser.add_argument("--calibration-copies", type=int, default=1, metavar="N",
                         help="record each calibration programme N times (other noise seeds): what more calibration buys")
+    parser.add_argument("--physics", type=physics_setting, action="append", metavar="KEY=VALUE",
+                        help="another simulated gyro, as tools/accuracy_table.py --physics (repeatable)")
+    parser.add_argument("--five-run", action="store_true",
+                        help="calibrate on the KVH guide's five-run programme (" + " + ".join(FIVE_RUN) + ")")
+    parser.add_argument("--markdown", metavar="PATH", help="also write what is printed, with a table of each "
+                        "case's worst run per seed, as a results page (replaced whole)")  # fmt: skip
     args = parser.parse_args()
-    specs = parse_inputs(args.inputs)
     cases = args.case or ["read/read", "true/true", "true/read"]
+    for case in cases:
+        if not 2 <= len(case.split("/")) <= 3 or case.count("/") == 2 and case.rsplit("/", 1)[1] not in TARGETS:
+            parser.error(f"--case {case!r}: give FIT/SERVE or FIT/SERVE/TARGET, TARGET one of {', '.join(TARGETS)}")
+    if not args.markdown:
+        run_cases(args, cases)
+        return
+    with captured_stdout() as printed:
+        run_cases(args, cases)
+    physics = ", ".join(f"{key}={value}" for key, value in args.physics or []) or "the navigation preset's"
+    header = results_header(PAGE_TITLE, ["python", "tools/trend_diagnostic.py", *sys.argv[1:]],
+                            settings=f"coil trend alone on {args.inputs}, rate prior {args.rate_prior}; calibration "
+                                     f"{' + '.join(programme(args))}; physics {physics}")  # fmt: skip
+    try:
+        write_results_page(args.markdown, header, PAGE_INTRO + "\n\n" + printed.getvalue())
+    except FogdError as error:
+        raise SystemExit(f"trend_diagnostic: cannot write {args.markdown}: {error}") from None
+    print(f"trend_diagnostic: wrote {args.markdown}", file=sys.stderr)
+
+
+def programme(args) -> tuple[str, ...]:
+    """The calibration runs' chamber programmes."""
+    return FIVE_RUN if args.five_run else CALIBRATION
+
+
+def run_cases(args, cases: list[str]) -> None:
+    """Print each case's line per seed and coil, then each coil's table of the worst run per seed."""
+    specs = parse_inputs(args.inputs)
     ridge = args.ridge if args.ridge == "loro" else float(args.ridge)
-    print(f"coil trend alone on {args.inputs}, ridge {args.ridge}, rate prior {args.rate_prior}: held-out drift / noise floor "
-          f"({', '.join(HELD_OUT)}), worst")  # fmt: skip
-    for seed in args.seed or [1, 2]:
-        for thermal in args.thermal or ["lumped", "diffusive"]:
-            extra = {} if args.hysteresis_dph is None else {"hysteresis_dph": args.hysteresis_dph}
+    seeds, thermals = args.seed or [1, 2], args.thermal or ["lumped", "diffusive"]
+    print(f"coil trend alone on {args.inputs}, ridge {args.ridge}, rate prior {args.rate_prior}, calibration "
+          f"{' + '.join(programme(args))}: held-out drift / noise floor ({', '.join(HELD_OUT)}), worst\n")  # fmt: skip
+    worst: dict[tuple[str, str], list[float]] = {}
+    for seed in seeds:
+        for thermal in thermals:
+            extra = dict(args.physics or [])
+            if args.hysteresis_dph is not None:
+                extra["hysteresis_dph"] = args.hysteresis_dph
             params = params_for("navigation", thermal, sensor_resolution_c=args.resolution_c,
                                 sensor_rate_hz=args.sensor_hz, **extra)  # fmt: skip
             calibration = [SimRun(name, seed + i + 1000 * copy, args.rate_hz, params)  # copy 0: the accuracy table's
-                           for copy in range(args.calibration_copies) for i, name in enumerate(CALIBRATION)]
+                           for copy in range(args.calibration_copies) for i, name in enumerate(programme(args))]
             held_out = [SimRun(name, seed + 100 + i, args.rate_hz, params) for i, name in enumerate(HELD_OUT)]
             for case, play in ((case, play) for case in cases for play in args.play or [None]):
-                fit_spec, _, serve_spec = case.partition("/")
-                ratios, trend = case_scores(calibration, held_out, fit_spec, serve_spec, specs, ridge, play, args.target,
+                fit_spec, serve_spec, target = (case.split("/") + [args.target])[:3]
+                ratios, trend = case_scores(calibration, held_out, fit_spec, serve_spec, specs, ridge, play, target,
                                             args.rate_prior)  # fmt: skip
                 case = case if play is None else f"{case} play {play}"
+                worst.setdefault((thermal, case), []).append(max(ratios))
                 chosen = f" ridge {trend.ridge:g}" if ridge == "loro" else ""
-                print(f"seed {seed} {thermal:9s} {case:28s} " + " ".join(f"{r:5.2f}" for r in ratios)
+                print(f"    seed {seed} {thermal:9s} {case:28s} " + " ".join(f"{r:5.2f}" for r in ratios)
                       + f"  worst {max(ratios):.2f}{chosen}  fit {trend.fit_rmse_dph * 1e3:.3f} loro {trend.loro_dph * 1e3:.3f} mdeg/h",
                       flush=True)  # fmt: skip
+    for thermal in thermals:
+        print(f"\n{thermal} coil: the worst held-out run's drift / noise floor, per seed\n")
+        print("| case (fit / serve [/ target]) | " + " | ".join(f"seed {seed}" for seed in seeds) + " | worst | mean |")
+        print("|---|" + "---:|" * (len(seeds) + 2))
+        for (coil, case), values in worst.items():
+            if coil == thermal:
+                print(f"| {case} | " + " | ".join(f"{v:.2f}" for v in values)
+                      + f" | {max(values):.2f} | {np.mean(values):.2f} |")  # fmt: skip
 
 
 if __name__ == "__main__":
