@@ -11,6 +11,7 @@ from fogd.calibration import features
 from fogd.calibration.channels import Settings, channel_jobs, fit_channels
 from fogd.calibration.models import FitOptions
 from fogd.calibration.training import TrainConfig, train
+from fogd.core.inputs import parse_inputs
 from fogd.core.runio import Run
 from fogd.errors import InputError
 
@@ -30,7 +31,8 @@ def runs() -> list[Run]:
 
 
 def test_inputs_are_computed_once_and_each_channel_fits_as_alone(runs, monkeypatch):
-    config = TrainConfig(method="linear", fit=FitOptions(progress=False))
+    # the play's lag given (with the default's play@2:auto every channel chooses its own, on its own rate)
+    config = TrainConfig(method="linear", inputs=parse_inputs("temp,lags@10..3000/7,play@2:300"), fit=FitOptions(progress=False))
     settings = Settings(config, [config.inputs])
     calls = []
     batch = features.inputs_batch

@@ -18,7 +18,7 @@ from fogd.calibration.models import FitOptions, Fitted, fit
 from fogd.core import domain, modelfile, outside_range
 from fogd.core.columns import BLOCK_S, block_samples
 from fogd.core.dequantise import COARSE_RESOLUTION_C, detect_resolution_c
-from fogd.core.errorstats import ErrorStats
+from fogd.core.errorstats import ErrorStats, centred_within_runs
 from fogd.core.frozen import FrozenModel
 from fogd.core.inputs import (
     DEFAULT_INPUTS_TEXT,
@@ -57,7 +57,12 @@ class TrainConfig:
 
 def for_sensor(runs: list[Run], config: TrainConfig) -> TrainConfig:
     """`config` with its inputs computed from the dequantised temperature when the runs' sensor is coarse
-    (fogd.core.dequantise: a KVH's whole degrees), from the readings otherwise; inputs already marked are kept."""
+    (fogd.core.dequantise: a KVH's whole degrees), from the readings otherwise (inputs already marked are kept),
+    and a `play@WIDTH:auto` input's lag chosen on the runs (with_play_lag)."""
+    return with_play_lag(runs, _for_resolution(runs, config))
+
+
+def _for_resolution(runs: list[Run], config: TrainConfig) -> TrainConfig:
     if dequantises(config.inputs):
         return config
     resolution_c = config.sensor_resolution_c
@@ -69,6 +74,51 @@ def for_sensor(runs: list[Run], config: TrainConfig) -> TrainConfig:
     if not COARSE_RESOLUTION_C <= resolution_c <= MAX_RESOLUTION_C:  # beyond: jumps, not a sensor's steps
         return config
     return dataclasses.replace(config, inputs=dequantised(config.inputs, resolution_c))
+
+
+# The play's lag candidates (0: the play of the temperature itself). A gyro's hysteresis follows its coil; how far
+# the coil lags the sensor depends on where the sensor sits. tools/trend_diagnostic.py --five-run --rate-prior
+# smooth --inputs temp,lags@10..3000/7 --play 2 --play 2@300 --play 2@1000 --play 2@2500 (seeds 1-3, worst held-out
+# run, mean over the seeds): the sensor on the housing, lumped coil 1.14x the floor with the play of the reading,
+# 1.08x on a 300 s lag; on a baseplate (--physics sensor_on=baseplate) lumped 1.32 -> 1.06x and diffusive 1.60 ->
+# 1.21x on a 2500 s lag; housing_tau_s=3000 diffusive 1.25 -> 1.14x on 1000 s. The lag the runs' held-out block
+# residual prefers is the lag the held-out runs prefer, within a few hundredths, on every one of those cases.
+PLAY_LAGS_S = (0.0, 100.0, 300.0, 1000.0, 2500.0)
+PLAY_CHOICE_MAX_HZ = 10.0  # the choice is made on the runs thinned to this rate: a play loop per candidate
+
+
+def with_play_lag(runs: list[Run], config: TrainConfig) -> TrainConfig:
+    """`config` with each `play@WIDTH:auto` input's lag chosen: the coil trend over the inputs with each of
+    PLAY_LAGS_S in turn, the one that leaves the least residual on the runs' blocks about each run's mean (the
+    same terms whatever the lag); the plain play (no lag) wins ties. Unchanged when no input asks."""
+    if not any(spec.play_lag_auto for spec in config.inputs):
+        return config
+    thinned = [_thinned(run, PLAY_CHOICE_MAX_HZ) for run in runs]
+    mean_dph = float(np.mean(np.concatenate([run.rate_dph for run in thinned])))
+    best: tuple[float, tuple[InputSpec, ...]] | None = None
+    for lag_s in PLAY_LAGS_S:
+        specs = tuple(dataclasses.replace(spec, play_lag_s=lag_s or None, play_lag_auto=False) if spec.play_lag_auto else spec
+                      for spec in config.inputs)  # fmt: skip
+        data = training_set(thinned, specs, config.block_s, 0.0, config.smoothed_fit)
+        options = dataclasses.replace(options_for_inputs(config.fit, specs), trend="coil", search=False, progress=False)
+        error = data.rate_dph - mean_dph
+        fitted = fit("pso-svr", data.x, error, data.groups, options)
+        predicted = fitted.estimator.predict((data.x - fitted.x_mean) / fitted.x_scale) * fitted.y_scale + fitted.y_mean
+        residual = float(np.sqrt(np.mean(centred_within_runs(error - predicted, data.groups) ** 2)))
+        if best is None or residual < best[0]:
+            best = (residual, specs)
+    assert best is not None
+    return dataclasses.replace(config, inputs=best[1])
+
+
+def _thinned(run: Run, max_hz: float) -> Run:
+    """Every k-th row of `run`, k the smallest that brings its rate to `max_hz` or below."""
+    step = max(1, int(np.ceil(run.rate_hz / max_hz - 1e-9)))
+    if step == 1:
+        return run
+    return dataclasses.replace(run, t_s=run.t_s[::step], rate_dph=run.rate_dph[::step], temp_c=run.temp_c[::step],
+                               rate_hz=run.rate_hz / step, extra={key: values[::step] for key, values in run.extra.items()},
+                               channels={key: values[::step] for key, values in run.channels.items()})  # fmt: skip
 
 
 @dataclass

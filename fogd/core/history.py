@@ -28,7 +28,7 @@ from fogd.core.dequantise import Dequantiser
 from fogd.core.estimator import TempRateEstimator
 from fogd.core.inputs import InputBank, InputSpec
 from fogd.core.lag import LagFilter
-from fogd.core.play import PlayFilter
+from fogd.core.play import LaggedPlay, PlayFilter
 
 STEP_S = 1.0
 SPAN_FACTOR = 5.0  # the history covers this many of the longest lag's time constants (e^-5: 0.7 % remains)
@@ -55,13 +55,19 @@ def lag_after(error_c: float, step_c: float, tau_s: float, rate_hz: float, steps
 def lag_through(points: list[tuple[float, float]], tau_s: float, rate_hz: float) -> float:
     """The lag's value at the last of `points` ((t_s, temp_c), times rising), fed the line through them at
     `rate_hz`, starting in steady state at the first (as fogd.core.lag starts)."""
+    return lag_at_points(points, tau_s, rate_hz)[-1]
+
+
+def lag_at_points(points: list[tuple[float, float]], tau_s: float, rate_hz: float) -> list[float]:
+    """`lag_through`'s value at each of `points` in turn."""
     error_c = 0.0
+    values = [points[0][1]]
     for (t0_s, x0_c), (t1_s, x1_c) in zip(points, points[1:]):
         steps = (t1_s - t0_s) * rate_hz
-        if steps <= 0:
-            continue
-        error_c = lag_after(error_c, (x1_c - x0_c) / steps, tau_s, rate_hz, steps)
-    return points[-1][1] - error_c
+        if steps > 0:
+            error_c = lag_after(error_c, (x1_c - x0_c) / steps, tau_s, rate_hz, steps)
+        values.append(x1_c - error_c)
+    return values
 
 
 def ramp_points(t_s: float, temp_c: float, rate_cps: float, span_s: float) -> list[tuple[float, float]]:
@@ -208,6 +214,13 @@ class TempHistory:
                 # (a dequantised source's earlier history: the block means, which its estimate tracks)
                 part.set_value(lag_through(before, part.tau_s, self.rate_hz))
                 _feed(part, full[1:])
+            elif isinstance(part, LaggedPlay):  # the play of the lag at each point (a lag of a line is smooth)
+                part.reset()
+                lagged = lag_at_points(before, part.lag.tau_s, self.rate_hz)
+                for temp_c in lagged:
+                    part.play.update_one(temp_c)
+                part.lag.set_value(lagged[-1])
+                _feed(part, full[1:])
             elif isinstance(part, PlayFilter):
                 part.reset()
                 for _, temp_c in before:
@@ -241,6 +254,6 @@ def _prime_dequantiser(dequantiser: Dequantiser, resolution_c: float, recent: li
     return out
 
 
-def _feed(part: LagFilter | PlayFilter | TempRateEstimator, values: list[float]) -> None:
+def _feed(part: LagFilter | PlayFilter | LaggedPlay | TempRateEstimator, values: list[float]) -> None:
     for start in range(0, len(values), FEED_CHUNK):
         part.update(np.array(values[start : start + FEED_CHUNK], dtype=np.float64))

@@ -9,8 +9,9 @@ works in exact integer sums, the lag filter runs one recurrence in both forms).
 Kinds: `temp_c` (the held temperature), `temp_rate_cps` (eq. 16 with its window settings; several windows
 may be used at once), `temp_lag_c` (a first-order lag of the temperature with time constant `tau_s`,
 fogd.core.lag) and `temp_play` (the play operator of the temperature with width `width_c`, fogd.core.play:
-+1 after heating, -1 after cooling). `parse_inputs` reads the `fogd-train --inputs` syntax, e.g.
-`temp,rate@50,rate@300,lag@600,play@2`.
++1 after heating, -1 after cooling; of a `play_lag_s` lag of the temperature when given). `parse_inputs` reads
+the `fogd-train --inputs` syntax, e.g. `temp,rate@50,rate@300,lag@600,play@2` or `play@2:300`; `play@2:auto`
+leaves the play's lag to fogd-train (fogd.calibration.training.with_play_lag), and a model file never holds it.
 Any of them may be computed from the dequantised temperature of a coarse sensor instead of its readings
 (`dequantise_c`, the sensor's resolution; fogd.core.dequantise), one dequantiser shared by all the inputs;
 `dequantise_pace` names how that estimate runs between crossings (None: "linear", what model files written
@@ -27,7 +28,7 @@ import numpy as np
 from fogd.core.dequantise import DEFAULT_PACE, PACES, Dequantiser, dequantise_batch, smoothed_batch
 from fogd.core.estimator import EstimatorSettings, TempRateEstimator, temp_rate_batch
 from fogd.core.lag import MAX_TAU_S, LagFilter, update_lags_one
-from fogd.core.play import MAX_WIDTH_C, PlayFilter
+from fogd.core.play import MAX_WIDTH_C, LaggedPlay, PlayFilter
 
 TEMP = "temp_c"
 TEMP_RATE = "temp_rate_cps"
@@ -39,7 +40,8 @@ INPUTS_SYNTAX = (
     "with --average-s and --step-s), 'lag@TAU' (temperature through a first-order lag of time constant TAU s, a "
     "stand-in for the coil temperature), 'lags@TAU,TAU,...' or 'lags@FIRST..LAST/COUNT' (a bank of such lags, "
     "the range log-spaced), 'play@WIDTH' (the temperature's play operator of WIDTH C: +1 after heating, -1 after "
-    "cooling, for a gyro's hysteresis); e.g. temp,rate@50,rate@300,lag@600 or lags@30..3000/5,play@2"
+    "cooling, for a gyro's hysteresis), 'play@WIDTH:TAU' (the same of a TAU s lag of the temperature) or "
+    "'play@WIDTH:auto' (TAU chosen on the runs); e.g. temp,rate@50,rate@300,lag@600 or lags@30..3000/5,play@2"
 )
 MAX_INPUTS = 16
 MAX_RESOLUTION_C = 10.0
@@ -48,8 +50,9 @@ MAX_RESOLUTION_C = 10.0
 @dataclass(frozen=True)
 class InputSpec:
     """One model input: `temp_c`, `temp_rate_cps` with its eq. 16 estimator settings, `temp_lag_c` with
-    its time constant `tau_s`, or `temp_play` with its width `width_c`; of the readings, or of their
-    dequantised estimate (`dequantise_c`)."""
+    its time constant `tau_s`, or `temp_play` with its width `width_c` (and its lag `play_lag_s`, or
+    `play_lag_auto` until fogd-train chooses it); of the readings, or of their dequantised estimate
+    (`dequantise_c`)."""
 
     kind: str
     estimator: EstimatorSettings | None = None
@@ -57,6 +60,8 @@ class InputSpec:
     dequantise_c: float | None = None  # the sensor's resolution when computed from fogd.dequantise's estimate
     dequantise_pace: str | None = None  # fogd.dequantise's pace (PACES) when not "linear"
     width_c: float | None = None
+    play_lag_s: float | None = None  # the play of this lag of the temperature (None: of the temperature)
+    play_lag_auto: bool = False  # `play@WIDTH:auto`: play_lag_s still to be chosen (never in a model file)
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -67,6 +72,10 @@ class InputSpec:
             raise ValueError(f"input {self.kind!r}: a time constant tau_s goes with {TEMP_LAG} only")
         if (self.kind == TEMP_PLAY) != (self.width_c is not None):
             raise ValueError(f"input {self.kind!r}: a width width_c goes with {TEMP_PLAY} only")
+        if (self.play_lag_s is not None or self.play_lag_auto) and self.kind != TEMP_PLAY:
+            raise ValueError(f"input {self.kind!r}: a play's lag goes with {TEMP_PLAY} only")
+        if self.play_lag_s is not None and (self.play_lag_auto or not 0 < self.play_lag_s <= MAX_TAU_S):
+            raise ValueError(f"a play's lag time constant must be in (0, {MAX_TAU_S:g}] s, got {self.play_lag_s}")
         if self.width_c is not None and not 0 < self.width_c <= MAX_WIDTH_C:
             raise ValueError(f"play width must be in (0, {MAX_WIDTH_C:g}] C, got {self.width_c}")
         if self.tau_s is not None and not 0 < self.tau_s <= MAX_TAU_S:
@@ -90,7 +99,7 @@ class InputSpec:
         if self.tau_s is not None:
             return f"{self.kind}@{self.tau_s:g}s"
         if self.width_c is not None:
-            return f"{self.kind}@{self.width_c:g}C"
+            return f"{self.kind}@{self.width_c:g}C" + self._play_lag_text("@lag{:g}s")
         return self.kind
 
     @property
@@ -101,8 +110,13 @@ class InputSpec:
         if self.tau_s is not None:
             return f"lag@{self.tau_s:g}"
         if self.width_c is not None:
-            return f"play@{self.width_c:g}"
+            return f"play@{self.width_c:g}" + self._play_lag_text(":{:g}")
         return "temp"
+
+    def _play_lag_text(self, form: str) -> str:
+        if self.play_lag_auto:
+            return form.split("{")[0] + "auto"
+        return "" if self.play_lag_s is None else form.format(self.play_lag_s)
 
     def to_dict(self) -> dict:
         extra = {} if self.dequantise_c is None else {"dequantise_c": float(self.dequantise_c)}
@@ -112,6 +126,10 @@ class InputSpec:
             return {"kind": self.kind, **self.estimator.to_dict(), **extra}
         if self.tau_s is not None:
             return {"kind": self.kind, "tau_s": float(self.tau_s), **extra}
+        if self.play_lag_auto:
+            raise ValueError(f"{self.short}: the play's lag is chosen by fogd-train before a model file is written")
+        if self.play_lag_s is not None:
+            extra["lag_s"] = float(self.play_lag_s)
         if self.width_c is not None:
             return {"kind": self.kind, "width_c": float(self.width_c), **extra}
         return {"kind": self.kind, **extra}
@@ -158,9 +176,12 @@ def _single(name: str, value: str, average_s: float, step_s: float) -> InputSpec
     if name == "lag" and value:
         return InputSpec(TEMP_LAG, tau_s=float(value))
     if name == "play" and value:
-        return InputSpec(TEMP_PLAY, width_c=float(value))
-    raise ValueError("expected temp, rate@SECONDS, lag@SECONDS, lags@SECONDS,SECONDS,... / lags@FIRST..LAST/COUNT "
-                     "or play@WIDTH_C")
+        width, _, lag = value.partition(":")
+        if lag == "auto":
+            return InputSpec(TEMP_PLAY, width_c=float(width), play_lag_auto=True)
+        return InputSpec(TEMP_PLAY, width_c=float(width), play_lag_s=float(lag) if lag else None)
+    raise ValueError("expected temp, rate@SECONDS, lag@SECONDS, lags@SECONDS,SECONDS,... / lags@FIRST..LAST/COUNT, "
+                     "play@WIDTH_C, play@WIDTH_C:TAU_S or play@WIDTH_C:auto")
 
 
 def _bank_taus(value: str) -> list[float]:
@@ -277,7 +298,7 @@ STATIC_MAX_TAU_S = 1000.0  # temperatures that follow the coil: the sensor's and
 # smoothed_batch), the denser bank halves the whole-degree runs' worst drift (tools/accuracy_table.py --quick
 # --sensor whole --schemes default, seed 1, worst run: lumped 13.55 with temp,lags@30..3000/5 fitted causally,
 # 9.92 with this bank fitted causally, 6.48 fitted from the offline estimate; diffusive 19.87, 14.32, 9.72).
-DEFAULT_INPUTS_TEXT = "temp,lags@10..3000/7,play@2"
+DEFAULT_INPUTS_TEXT = "temp,lags@10..3000/7,play@2:auto"
 
 
 def static_columns(specs: tuple[InputSpec, ...], max_tau_s: float = STATIC_MAX_TAU_S) -> tuple[int, ...]:
@@ -342,7 +363,7 @@ def _column_batch(temp_c: np.ndarray, spec: InputSpec, rate_hz: float) -> np.nda
     if spec.tau_s is not None:
         return LagFilter(spec.tau_s, rate_hz).update(temp_c)
     if spec.width_c is not None:
-        return PlayFilter(spec.width_c).update(temp_c)
+        return _play(spec, rate_hz).update(temp_c)
     return temp_c
 
 
@@ -351,13 +372,19 @@ def _sources(specs: tuple[InputSpec, ...]) -> list[tuple[float, str] | None]:
     return list(dict.fromkeys(spec.source for spec in specs))
 
 
-def _streaming(spec: InputSpec, rate_hz: float) -> TempRateEstimator | LagFilter | PlayFilter | None:
+def _play(spec: InputSpec, rate_hz: float) -> PlayFilter | LaggedPlay:
+    if spec.play_lag_auto:
+        raise ValueError(f"{spec.short}: the play's lag must be chosen (fogd.calibration.training.with_play_lag) first")
+    return PlayFilter(spec.width_c) if spec.play_lag_s is None else LaggedPlay(spec.width_c, spec.play_lag_s, rate_hz)
+
+
+def _streaming(spec: InputSpec, rate_hz: float) -> TempRateEstimator | LagFilter | PlayFilter | LaggedPlay | None:
     if spec.estimator is not None:
         return TempRateEstimator(spec.estimator, rate_hz)
     if spec.tau_s is not None:
         return LagFilter(spec.tau_s, rate_hz)
     if spec.width_c is not None:
-        return PlayFilter(spec.width_c)
+        return _play(spec, rate_hz)
     return None
 
 
@@ -386,7 +413,7 @@ class InputBank:
         return self.count > self.warmup
 
     @property
-    def parts(self) -> list[TempRateEstimator | LagFilter | PlayFilter | None]:
+    def parts(self) -> list[TempRateEstimator | LagFilter | PlayFilter | LaggedPlay | None]:
         """Each input's streaming state (None: the temperature itself), for fogd.core.history to prime."""
         return self._estimators
 

@@ -38,7 +38,9 @@ the key refuses a file with it (an unknown key of an input) rather than serving 
 
 Version 5 is a single-channel model (alone or as a channel's model) with a `temp_play` input (fogd.core.play,
 with `width_c`: the temperature's play operator, for a gyro's heating/cooling hysteresis); its inputs may be
-dequantised as in version 4. Only a model with such an input is written as version 5.
+dequantised as in version 4. Only a model with such an input is written as version 5. Its optional `lag_s`
+makes it the play of a first-order lag of the temperature (fogd.core.play.LaggedPlay); a fogd from before the key
+refuses a file with it, as for `dequantise_pace`.
 """
 
 from __future__ import annotations
@@ -554,11 +556,15 @@ class _Checker:
                     self.fail(where, f"needs 0 < tau_s <= {MAX_TAU_S:g}")
                 specs.append(InputSpec(TEMP_LAG, tau_s=tau_s, **source))
             elif item["kind"] == TEMP_PLAY:
-                self.mapping(item, where, {"kind", "width_c"})
+                # lag_s (the play of a lag of the temperature) is optional: a fogd before it refuses the key
+                self.mapping(item, where, {"kind", "width_c"}, optional={"lag_s"})
                 width_c = self.number(item["width_c"], f"{where}.width_c")
                 if not 0 < width_c <= MAX_WIDTH_C:
                     self.fail(where, f"needs 0 < width_c <= {MAX_WIDTH_C:g}")
-                specs.append(InputSpec(TEMP_PLAY, width_c=width_c, **source))
+                lag_s = self.number(item["lag_s"], f"{where}.lag_s") if "lag_s" in item else None
+                if lag_s is not None and not 0 < lag_s <= MAX_TAU_S:
+                    self.fail(where, f"needs 0 < lag_s <= {MAX_TAU_S:g}")
+                specs.append(InputSpec(TEMP_PLAY, width_c=width_c, play_lag_s=lag_s, **source))
             else:
                 self.mapping(item, where, {"kind"})
                 specs.append(InputSpec(item["kind"], **source))

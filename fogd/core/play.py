@@ -10,11 +10,18 @@ the direction of the last move after the temperature has come to rest. The opera
 
 Streaming (`PlayFilter.update`, any chunk size, O(1) per sample) and batch (`play_batch`) run the same
 per-sample recurrence in Python floats, so both give the same floats bit for bit whatever the chunking.
+
+A gyro's hysteresis follows its coil, not its sensor: where the sensor leads the coil by a long way (on a
+baseplate that follows the air), the play of the reading turns long before the coil's does. `LaggedPlay` is the
+operator of a first-order lag of the temperature (fogd.core.lag), the lag standing in for the coil;
+fogd.calibration.training.with_play_lag chooses its time constant on the calibration runs.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from fogd.core.lag import LagFilter
 
 MAX_WIDTH_C = 50.0
 
@@ -70,3 +77,21 @@ class PlayFilter:
 def play_batch(temp_c: np.ndarray, width_c: float) -> np.ndarray:
     """The operator over a whole run (the streaming form fed in one chunk)."""
     return PlayFilter(width_c).update(temp_c)
+
+
+class LaggedPlay:
+    """The operator of a `lag_s` first-order lag of the temperature, streaming (the lag, then the play)."""
+
+    def __init__(self, width_c: float, lag_s: float, rate_hz: float) -> None:
+        self.lag = LagFilter(lag_s, rate_hz)
+        self.play = PlayFilter(width_c)
+
+    def reset(self) -> None:
+        self.lag.reset()
+        self.play.reset()
+
+    def update(self, temp_c: np.ndarray) -> np.ndarray:
+        return self.play.update(self.lag.update(temp_c))
+
+    def update_one(self, temp_c: float) -> float:
+        return self.play.update_one(self.lag.update_one(temp_c))
