@@ -5,6 +5,7 @@ and the model file keeps it, its pace, and reads files from before the pace as l
 that training fits (forwards and backwards in time): symmetric in time, inside the band, closer than the
 causal one where a ramp speeds up, and used for the fitted blocks only."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -19,7 +20,7 @@ from fogd.core.dequantise import (COARSE_RESOLUTION_C, PACES, Dequantiser, dequa
                                    smoothed_batch)
 from fogd.core.errorstats import block_means
 from fogd.core.inputs import (DEFAULT_INPUTS_TEXT, InputBank, dequantised, describe_inputs, inputs_batch,
-                               parse_inputs)
+                               parse_inputs, with_play_lag_s)
 from fogd.core.runio import Run
 from fogd.errors import ModelFileError, UsageError
 
@@ -161,15 +162,16 @@ def _run(temp_c: np.ndarray) -> Run:
 
 def test_the_default_dequantises_a_whole_degree_sensor_only():
     ramp = 10.0 + 0.005 * np.arange(36000) / RATE_HZ
-    config = TrainConfig()
+    # the default's inputs with the play's lag given (for_sensor would choose it: tests/test_play_lag_choice.py)
+    config = TrainConfig(inputs=with_play_lag_s(parse_inputs(DEFAULT_INPUTS_TEXT), 300.0))
     coarse = for_sensor([_run(np.round(ramp))], config)
     assert all(spec.dequantise_c == 1.0 and spec.dequantise_pace == "quadratic" for spec in coarse.inputs)
     assert describe_inputs(coarse.inputs).endswith(" (dequantised 1 C)")
-    assert coarse.inputs == dequantised(parse_inputs(DEFAULT_INPUTS_TEXT), 1.0)  # the default, dequantised
+    assert coarse.inputs == dequantised(config.inputs, 1.0)  # the default, dequantised
     chosen = parse_inputs("temp,lag@300,play@2")  # inputs asked for are kept, dequantised
     assert for_sensor([_run(np.round(ramp))], TrainConfig(inputs=chosen)).inputs == dequantised(chosen, 1.0)
     assert for_sensor([_run(np.round(ramp * 16) / 16)], config).inputs == config.inputs
-    assert for_sensor([_run(np.round(ramp))], TrainConfig(sensor_resolution_c=0.0)).inputs == config.inputs
+    assert for_sensor([_run(np.round(ramp))], dataclasses.replace(config, sensor_resolution_c=0.0)).inputs == config.inputs
     forced = for_sensor([_run(ramp)], TrainConfig(sensor_resolution_c=COARSE_RESOLUTION_C))
     assert all(spec.dequantise_c == COARSE_RESOLUTION_C for spec in forced.inputs)
     assert for_sensor([_run(np.round(ramp))], coarse) is coarse  # already decided: kept

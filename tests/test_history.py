@@ -49,7 +49,8 @@ def primed_row(history: TempHistory, specs: tuple, next_c: float) -> np.ndarray:
 
 
 @settings(max_examples=8, deadline=None)
-@given(seed=st.integers(0, 1000), inputs=st.sampled_from([BANK_INPUTS, "temp,rate@50", "lags@30,300,play@1,rate@120"]))
+@given(seed=st.integers(0, 1000),
+       inputs=st.sampled_from([BANK_INPUTS, "temp,rate@50", "lags@30,300,play@1,rate@120", "temp,lags@30,300,play@1:600"]))
 def test_a_bank_primed_from_the_raw_history_is_the_whole_run_through_it(seed, inputs):
     """A raw tail as long as the run: the primed bank's next row is the batch inputs' (play and lags to 1e-9)."""
     run, specs, expected = run_and_inputs(inputs, seed)
@@ -77,6 +78,21 @@ def test_block_means_alone_cost_the_lags_far_less_than_the_noise():
     assert error_c.max() < 1e-3
     cold = np.array(InputBank(specs, RATE_HZ).update_one(expected[0]))
     assert np.abs(cold[lags] - expected[lags]).max() > 1.0
+
+
+def test_a_lagged_play_primed_from_block_means_is_the_whole_run_through_it():
+    """The play of a 600 s lag, primed from 1 s block means alone (the lag at each point, then the play): within a
+    hundredth of its range of the batch input after a ramp and a soak, where a cold start is at 0."""
+    run, specs, expected = run_and_inputs("temp,play@1:600", 2)
+    full = TempHistory(RATE_HZ)
+    full.extend(run["t_s"].tolist(), run["temp_c"].tolist())
+    restored = TempHistory(RATE_HZ)
+    restored.restore(full.points(), full.samples)
+    restored.bridge(run["t_s"][-1] + 1 / RATE_HZ, expected[0])
+    row = primed_row(restored, specs, expected[0])
+    assert abs(expected[1]) > 0.5  # the lag has risen well past the play's width: the operator is far from rest
+    assert abs(row[1] - expected[1]) < 0.02
+    assert abs(InputBank(specs, RATE_HZ).update_one(expected[0])[1] - expected[1]) > 0.5
 
 
 def test_a_gap_in_a_linear_ramp_is_bridged_exactly():

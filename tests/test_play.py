@@ -1,5 +1,6 @@
 """The play input: the operator's streaming form equals its batch form bit for bit for any chunking; it holds
-the direction of the last move; it is parsed, computed in the input bank and kept by the model file."""
+the direction of the last move; it is parsed, computed in the input bank and kept by the model file; so is the
+play of a lagged temperature, which turns after the reading does."""
 
 import numpy as np
 import pytest
@@ -16,6 +17,7 @@ from fogd.core.inputs import (
     inputs_batch,
     parse_inputs,
 )
+from fogd.core.lag import lag_batch
 from fogd.core.play import PlayFilter, play_batch
 from fogd.errors import ModelFileError
 
@@ -112,3 +114,59 @@ def test_a_bad_play_width_is_refused():
     document["inputs"][1]["width_c"] = 0.0
     with pytest.raises(ModelFileError, match="width_c"):
         modelfile.from_document(document)
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    temps=st.lists(st.floats(-50, 120, allow_nan=False), min_size=1, max_size=300),
+    sizes=st.lists(st.integers(1, 40), max_size=30),
+    lag_s=st.floats(0.5, 3000.0),
+)
+def test_a_lagged_play_streams_as_its_batch_whatever_the_chunking(temps, sizes, lag_s):
+    """The play of a lag, in chunks or a sample at a time, is the batch input bit for bit (and is the play of the
+    lag: the lag's batch filter then the operator)."""
+    values = np.array(temps)
+    (spec,) = parse_inputs(f"play@1.5:{lag_s!r}")
+    batch = inputs_batch(values, (spec,), 2.0)[:, 0]
+    bank, parts, start = InputBank((spec,), 2.0), [], 0
+    for size in sizes:
+        parts.append(bank.update(values[start : start + size])[:, 0])
+        start += size
+    parts.append(bank.update(values[start:])[:, 0] if start < values.size else np.empty(0))
+    assert np.array_equal(np.concatenate(parts)[: values.size], batch)
+    one = InputBank((spec,), 2.0)
+    assert np.array_equal(np.array([one.update_one(t)[0] for t in values.tolist()]), batch)
+    assert np.array_equal(batch, play_batch(lag_batch(values, lag_s, 2.0), 1.5))
+
+
+def test_a_lagged_play_turns_after_the_reading_turns():
+    """A triangle of 1 C/min: the play of the reading leaves +1 at the turn; the play of a 600 s lag keeps heating
+    for minutes after it (the lag still rising), as a coil behind its sensor does."""
+    t_s = np.arange(0.0, 7200.0)
+    temp_c = 20.0 + np.where(t_s < 3600.0, t_s, 7200.0 - t_s) / 60.0
+    plain, lagged = (inputs_batch(temp_c, parse_inputs(text), 1.0)[:, 0] for text in ("play@2", "play@2:600"))
+    first_below = lambda out: int(np.argmax((t_s > 3600.0) & (out < 1.0)))  # noqa: E731
+    assert first_below(plain) - 3600 < 5
+    assert first_below(lagged) - 3600 > 300
+
+
+def test_a_lagged_play_is_parsed_described_and_kept_by_the_model_file(tmp_path):
+    specs = parse_inputs("temp,lags@30,300,play@2:600")
+    assert specs[-1] == InputSpec(TEMP_PLAY, width_c=2.0, play_lag_s=600.0)
+    assert describe_inputs(specs) == "temp,lags@30,300,play@2:600" and specs[-1].label == "temp_play@2C@lag600s"
+    path = tmp_path / "m.json"
+    modelfile.save(path, _document(specs))
+    assert modelfile.load(path).inputs == specs
+    document = _document(specs)
+    document["inputs"][-1]["lag_s"] = -1.0
+    with pytest.raises(ModelFileError, match="lag_s"):
+        modelfile.from_document(document)
+    (auto,) = parse_inputs("play@2:auto")
+    assert auto.play_lag_auto and auto.play_lag_s is None and auto.short == "play@2:auto"
+    with pytest.raises(ValueError, match="chosen by fogd-train"):
+        auto.to_dict()
+    with pytest.raises(ValueError, match="must be chosen"):
+        inputs_batch(np.zeros(3), (auto,), 1.0)
+    for bad in ("play@2:0", "play@2:x", "lag@30:5"):
+        with pytest.raises(ValueError):
+            parse_inputs(bad)

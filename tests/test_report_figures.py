@@ -181,12 +181,15 @@ def test_fit_figure_takes_each_runs_offset_off(
         assert any(y.shape == measured[rows].shape and np.allclose(y, t.fit_dph[rows]) for y in top_y), name
 
 
-def test_captions_name_the_models_real_inputs(drawn: tuple[dict, str]) -> None:
+def test_captions_name_the_models_real_inputs(trained: dict[str, Trained], drawn: tuple[dict, str]) -> None:
     text = drawn[1]
     section = text[text.index("## Error against temperature") :]
     caption = section[: section.index("![")]
     assert "the rate input" not in caption
-    assert "`temp,lags@10,25.9,66.9,173,448,1160,3000,play@2`" in caption  # the default inputs, spelled out
+    # the default inputs spelled out, the play with the lag fogd-train chose for it (play@2 or play@2:TAU)
+    (play,) = [spec for spec in trained["pso-svr"].model.inputs if spec.width_c is not None]
+    assert not play.play_lag_auto and play.width_c == 2.0
+    assert f"`temp,lags@10,25.9,66.9,173,448,1160,3000,{play.short}`" in caption
     assert "`temp,rate@50`" in caption and "`temp`" in caption
     assert "temperature alone" in caption  # what a model of temperature alone cannot draw
     fit_caption = text[text.index("![pso-svr: fit and residual]") - 400 : text.index("![pso-svr: fit and residual]")]

@@ -33,6 +33,7 @@ from fogd.core.inputs import (
     shifted_columns,
     static_columns,
     temperature_columns,
+    with_play_lag_s,
 )
 from fogd.core.runio import Run
 from fogd.errors import InputError, UsageError
@@ -97,8 +98,7 @@ def with_play_lag(runs: list[Run], config: TrainConfig) -> TrainConfig:
     mean_dph = float(np.mean(np.concatenate([run.rate_dph for run in thinned])))
     best: tuple[float, tuple[InputSpec, ...]] | None = None
     for lag_s in PLAY_LAGS_S:
-        specs = tuple(dataclasses.replace(spec, play_lag_s=lag_s or None, play_lag_auto=False) if spec.play_lag_auto else spec
-                      for spec in config.inputs)  # fmt: skip
+        specs = with_play_lag_s(config.inputs, lag_s)
         data = training_set(thinned, specs, config.block_s, 0.0, config.smoothed_fit)
         options = dataclasses.replace(options_for_inputs(config.fit, specs), trend="coil", search=False, progress=False)
         error = data.rate_dph - mean_dph

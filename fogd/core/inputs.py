@@ -251,6 +251,12 @@ def lag_taus_s(specs: tuple[InputSpec, ...]) -> tuple[float, ...]:
     return tuple(float(spec.tau_s) if spec.kind == TEMP_LAG else 0.0 for spec in specs)
 
 
+def with_play_lag_s(specs: tuple[InputSpec, ...], lag_s: float) -> tuple[InputSpec, ...]:
+    """`specs` with each `play@WIDTH:auto` input's lag chosen as `lag_s` (0: the play of the temperature itself)."""
+    return tuple(dataclasses.replace(spec, play_lag_s=lag_s or None, play_lag_auto=False) if spec.play_lag_auto else spec
+                 for spec in specs)  # fmt: skip
+
+
 def dequantises(specs: tuple[InputSpec, ...]) -> bool:
     """Whether some input is computed from a coarse sensor's dequantised estimate."""
     return any(spec.dequantise_c is not None for spec in specs)
