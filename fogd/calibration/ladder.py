@@ -281,8 +281,9 @@ def climb(runs, config: TrainConfig, rungs: tuple[Rung, ...] = RUNGS, log: Calla
           unit: str = "deg/h", average_s: float = 0.5, step_s: float = 0.0) -> Ladder:  # fmt: skip
     """Score every rung on the runs' time-respecting folds, choose by the one-standard-error rule and fit the
     chosen rung on all the runs (`average_s`, `step_s`: the eq. 16 estimator's, for a rung's rate input)."""
-    sets = {rung.inputs_text: for_sensor(runs, dataclasses.replace(config, inputs=parse_inputs(rung.inputs_text, average_s, step_s))).inputs
-            for rung in rungs}  # fmt: skip
+    # once per input set (two rungs share the lag bank, whose play's lag for_sensor chooses on the runs)
+    sets = {text: for_sensor(runs, dataclasses.replace(config, inputs=parse_inputs(text, average_s, step_s))).inputs
+            for text in dict.fromkeys(rung.inputs_text for rung in rungs)}  # fmt: skip
     common_s = max((spec.estimator.window_s for specs in sets.values() for spec in specs if spec.estimator is not None),
                    default=0.0)  # fmt: skip
     gap = max(gap_rows(specs, config.block_s) for specs in sets.values())
