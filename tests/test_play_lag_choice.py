@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from fogd.calibration.models import FitOptions
-from fogd.calibration.training import PLAY_LAGS_S, TrainConfig, with_play_lag
+from fogd.calibration.training import PLAY_LAG_TOLERANCE, PLAY_LAGS_S, TrainConfig, shortest_within_tolerance, with_play_lag
 from fogd.core.inputs import parse_inputs
 from fogd.core.lag import lag_batch
 from fogd.core.play import play_batch
@@ -45,3 +45,12 @@ def test_the_play_takes_the_lag_the_error_follows(lag_s):
 def test_inputs_that_do_not_ask_are_left_alone():
     config = TrainConfig(inputs=parse_inputs("temp,lags@10..3000/7,play@2"), fit=FitOptions(progress=False))
     assert with_play_lag(runs_whose_hysteresis_follows(1000.0, 2), config) is config
+
+
+def test_the_shortest_lag_within_the_tolerance_of_the_least_residual_is_taken():
+    """A lag the blocks can hardly tell from a shorter one is noise: the shorter wins unless the longer leaves
+    more than PLAY_LAG_TOLERANCE less residual."""
+    assert PLAY_LAG_TOLERANCE == pytest.approx(0.01)
+    assert shortest_within_tolerance([(0.865, "0"), (0.864, "100 s"), (0.864, "300 s")]) == "0"
+    assert shortest_within_tolerance([(0.887, "0"), (0.876, "1000 s"), (0.865, "2500 s")]) == "2500 s"
+    assert shortest_within_tolerance([(0.900, "0"), (0.880, "100 s"), (0.875, "300 s")]) == "100 s"

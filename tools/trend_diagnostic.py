@@ -54,7 +54,7 @@ import numpy as np
 
 from fogd.calibration.models.coil import PRIORS, fit_mix, fit_rate_prior
 from fogd.calibration.models.least_squares import RunOffsetLeastSquares
-from fogd.calibration.training import PLAY_LAGS_S
+from fogd.calibration.training import PLAY_LAGS_S, shortest_within_tolerance
 from fogd.core.columns import BLOCK_S
 from fogd.core.errorstats import block_means, centred_within_runs, detrended_stats
 from fogd.core.inputs import (
@@ -254,10 +254,10 @@ def score(run: SimRun, comp_dph: np.ndarray) -> float:
 def case_scores(calibration: list[SimRun], held_out: list[SimRun], fit_spec: str, serve_spec: str, specs,
                 ridge: float | str, play: str | None = None, target: str = "rate",
                 rate_prior: str = "none") -> tuple[list[float], Trend]:  # fmt: skip
-    if any(spec.play_lag_auto for spec in specs):  # as fogd-train chooses it: the least residual on the blocks
+    if any(spec.play_lag_auto for spec in specs):  # chosen as fogd-train chooses it, by the residual on the blocks
         trials = [case_scores(calibration, held_out, fit_spec, serve_spec, with_play_lag_s(specs, lag_s), ridge, play,
                               target, rate_prior) for lag_s in PLAY_LAGS_S]  # fmt: skip
-        return min(trials, key=lambda trial: trial[1].fit_rmse_dph)
+        return shortest_within_tolerance([(trial[1].fit_rmse_dph, trial) for trial in trials])
     block_n = round(BLOCK_S * calibration[0].rate_hz)
     xs, ys, groups, samples = [], [], [], []
     for index, run in enumerate(calibration):
