@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from fogd.calibration.models import FitOptions
-from fogd.calibration.training import PLAY_LAG_TOLERANCE, PLAY_LAGS_S, TrainConfig, shortest_within_tolerance, with_play_lag
+from fogd.calibration.training import (PLAY_LAG_TOLERANCE, PLAY_LAGS_S, TrainConfig, shortest_within_tolerance, turns,
+                                      with_play_lag)
 from fogd.core.inputs import parse_inputs
 from fogd.core.lag import lag_batch
 from fogd.core.play import play_batch
@@ -54,3 +55,13 @@ def test_the_shortest_lag_within_the_tolerance_of_the_least_residual_is_taken():
     assert shortest_within_tolerance([(0.865, "0"), (0.864, "100 s"), (0.864, "300 s")]) == "0"
     assert shortest_within_tolerance([(0.887, "0"), (0.876, "1000 s"), (0.865, "2500 s")]) == "2500 s"
     assert shortest_within_tolerance([(0.900, "0"), (0.880, "100 s"), (0.875, "300 s")]) == "100 s"
+
+
+def test_runs_that_never_turn_keep_the_readings_play():
+    """A heating run and a cooling run: each holds its play's level in its own offset, so no lag can be told
+    from them (a lagged play would only fit one more slow transient); the reading's play is kept."""
+    runs = runs_whose_hysteresis_follows(2500.0, 3)[:2]
+    assert not turns(runs, 2.0) and turns(runs_whose_hysteresis_follows(2500.0, 3), 2.0)
+    config = TrainConfig(inputs=parse_inputs("temp,lags@10..3000/7,play@2:auto"), fit=FitOptions(progress=False))
+    (play,) = [spec for spec in with_play_lag(runs, config).inputs if spec.width_c is not None]
+    assert play.play_lag_s is None and not play.play_lag_auto
