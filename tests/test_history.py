@@ -48,6 +48,16 @@ def primed_row(history: TempHistory, specs: tuple, next_c: float) -> np.ndarray:
     return np.array(bank.update_one(next_c))
 
 
+def from_block_means(run: dict, next_c: float) -> TempHistory:
+    """What a restart finds: the run's 1 s block means alone (the state file), bridged to the next sample."""
+    full = TempHistory(RATE_HZ)
+    full.extend(run["t_s"].tolist(), run["temp_c"].tolist())
+    restored = TempHistory(RATE_HZ)
+    restored.restore(full.points(), full.samples)
+    restored.bridge(run["t_s"][-1] + 1 / RATE_HZ, next_c)
+    return restored
+
+
 @settings(max_examples=8, deadline=None)
 @given(seed=st.integers(0, 1000),
        inputs=st.sampled_from([BANK_INPUTS, "temp,rate@50", "lags@30,300,play@1,rate@120", "temp,lags@30,300,play@1:600"]))
@@ -65,11 +75,7 @@ def test_block_means_alone_cost_the_lags_far_less_than_the_noise():
     lags' error is a thousandth of a degree at most, against 0.01 C of sensor noise (figures in
     docs/reference/thermal-state.md); without the history (a cold start) it is degrees."""
     run, specs, expected = run_and_inputs(BANK_INPUTS, 1)
-    full = TempHistory(RATE_HZ)
-    full.extend(run["t_s"].tolist(), run["temp_c"].tolist())
-    restored = TempHistory(RATE_HZ)
-    restored.restore(full.points(), full.samples)
-    restored.bridge(run["t_s"][-1] + 1 / RATE_HZ, expected[0])
+    restored = from_block_means(run, expected[0])
     # the bridge ends at the sample before the next one, which is the last sample itself: prime and feed it
     row = primed_row(restored, specs, expected[0])
     lags = slice(1, 8)
@@ -84,11 +90,7 @@ def test_a_lagged_play_primed_from_block_means_is_the_whole_run_through_it():
     """The play of a 600 s lag, primed from 1 s block means alone (the lag at each point, then the play): within a
     hundredth of its range of the batch input after a ramp and a soak, where a cold start is at 0."""
     run, specs, expected = run_and_inputs("temp,play@1:600", 2)
-    full = TempHistory(RATE_HZ)
-    full.extend(run["t_s"].tolist(), run["temp_c"].tolist())
-    restored = TempHistory(RATE_HZ)
-    restored.restore(full.points(), full.samples)
-    restored.bridge(run["t_s"][-1] + 1 / RATE_HZ, expected[0])
+    restored = from_block_means(run, expected[0])
     row = primed_row(restored, specs, expected[0])
     assert abs(expected[1]) > 0.5  # the lag has risen well past the play's width: the operator is far from rest
     assert abs(row[1] - expected[1]) < 0.02

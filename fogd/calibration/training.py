@@ -39,6 +39,8 @@ from fogd.core.play import play_batch
 from fogd.core.runio import Run
 from fogd.errors import InputError, UsageError
 
+Trial = TypeVar("Trial")  # shortest_within_tolerance's: whatever each residual belongs to
+
 
 @dataclass
 class TrainConfig:
@@ -89,7 +91,6 @@ def _for_resolution(runs: list[Run], config: TrainConfig) -> TrainConfig:
 # PLAY_LAG_TOLERANCE of the least residual is taken (the baseplate's 2500 s leaves 2.5 % less than the reading's).
 PLAY_LAGS_S = (0.0, 100.0, 300.0, 1000.0, 2500.0)
 PLAY_LAG_TOLERANCE = 0.01
-Trial = TypeVar("Trial")
 PLAY_CHOICE_MAX_HZ = 10.0  # the choice is made on the runs thinned to this rate: a play loop per candidate
 
 

@@ -99,7 +99,7 @@ class InputSpec:
         if self.tau_s is not None:
             return f"{self.kind}@{self.tau_s:g}s"
         if self.width_c is not None:
-            return f"{self.kind}@{self.width_c:g}C" + self._play_lag_text("@lag{:g}s")
+            return f"{self.kind}@{self.width_c:g}C" + self._play_lag_text("@lag", "s")
         return self.kind
 
     @property
@@ -110,13 +110,13 @@ class InputSpec:
         if self.tau_s is not None:
             return f"lag@{self.tau_s:g}"
         if self.width_c is not None:
-            return f"play@{self.width_c:g}" + self._play_lag_text(":{:g}")
+            return f"play@{self.width_c:g}" + self._play_lag_text(":")
         return "temp"
 
-    def _play_lag_text(self, form: str) -> str:
+    def _play_lag_text(self, prefix: str, unit: str = "") -> str:
         if self.play_lag_auto:
-            return form.split("{")[0] + "auto"
-        return "" if self.play_lag_s is None else form.format(self.play_lag_s)
+            return f"{prefix}auto"
+        return "" if self.play_lag_s is None else f"{prefix}{self.play_lag_s:g}{unit}"
 
     def to_dict(self) -> dict:
         extra = {} if self.dequantise_c is None else {"dequantise_c": float(self.dequantise_c)}
