@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from imu_runs import imu_columns
 
-from fogd.calibration import features
+from fogd.calibration import channels, features
 from fogd.calibration.channels import Settings, channel_jobs, fit_channels
 from fogd.calibration.models import FitOptions
 from fogd.calibration.training import TrainConfig, train
@@ -31,8 +31,10 @@ def runs() -> list[Run]:
 
 
 def test_inputs_are_computed_once_and_each_channel_fits_as_alone(runs, monkeypatch):
-    # the play's lag given (with the default's play@2:auto every channel chooses its own, on its own rate)
-    config = TrainConfig(method="linear", inputs=parse_inputs("temp,lags@10..3000/7,play@2:300"), fit=FitOptions(progress=False))
+    # the play's lag given (with the default's play@2:auto every channel chooses its own, on its own rate), and
+    # the sensor's noise (chosen once for the unit otherwise: the next test)
+    config = TrainConfig(method="linear", inputs=parse_inputs("temp,lags@10..3000/7,play@2:300"), fit=FitOptions(progress=False),
+                         sensor_noise_c=0.01)  # fmt: skip
     settings = Settings(config, [config.inputs])
     calls = []
     batch = features.inputs_batch
@@ -55,3 +57,20 @@ def test_one_channel_shares_nothing_and_a_missing_channel_is_named(runs):
     assert job.inputs is None and job.runs[0].rate_dph is runs[0].channels["accel_y_g"]
     with pytest.raises(InputError, match="unit u: fast-ramp.csv has no channel accel_z_g"):
         channel_jobs("u", runs, [], ["accel_z_g"], settings)
+
+
+def test_the_units_sensor_noise_is_chosen_once_on_its_clearest_channel(runs, monkeypatch):
+    """The channels share one temperature sensor: its noise is chosen once, on the channel whose drift stands
+    out most from its noise (here a gyro, not the accelerometer), and every channel's job carries it."""
+    config = TrainConfig(method="linear", inputs=parse_inputs("temp,lags@10..3000/7,play@2:300"), fit=FitOptions(progress=False))
+    chosen_on = []
+    real = channels.sensor_noise_c
+    monkeypatch.setattr(channels, "sensor_noise_c", lambda runs, config: chosen_on.append(runs) or real(runs, config))
+    jobs = channel_jobs("", runs, [], None, Settings(config, [config.inputs]))
+    (on,) = chosen_on
+    ratios = {name: channels.drift_to_noise([run.channel(name) for run in runs], config.block_s) for name in CHANNELS}
+    assert on[0].rate_dph is runs[0].channels[max(ratios, key=ratios.get)]
+    assert max(ratios, key=ratios.get).startswith("rate_") and ratios["accel_y_g"] < max(ratios.values())
+    noise_c = jobs[0].sensor_noise_c
+    assert noise_c is not None and all(job.sensor_noise_c == noise_c for job in jobs)
+    assert real(on, config) == noise_c

@@ -19,6 +19,9 @@ time, each one of
     inv:W     causal: ma:W through the inverse of the noise-dithered staircase (the expected reading as a
               function of the temperature, Gaussian noise then the quantiser); exploratory: the sensor's
               noise is taken as known from the simulation (inv:W:SIGMA assumes SIGMA C instead)
+    und:SIGMA fogd.core.undither's estimate assuming SIGMA C of noise, as the daemon serves it; `und:auto` takes
+              the noise as fogd-train does (training.with_undither: the readings or the candidate whose coil
+              trend leaves the least residual on the calibration blocks, the play's lag then chosen on it)
 `+deq` after any of them runs it through fogd.core.dequantise's causal estimate at the sensor's resolution (the
 parabola through the last three crossings, as the daemon serves a whole-degree sensor), `+deqfb` through the
 mean of that estimate run forwards and backwards (what fogd-train fits it on), and `+pre:TAU` puts a causal
@@ -54,7 +57,7 @@ import numpy as np
 
 from fogd.calibration.models.coil import PRIORS, fit_mix, fit_rate_prior
 from fogd.calibration.models.least_squares import RunOffsetLeastSquares
-from fogd.calibration.training import PLAY_LAGS_S, shortest_within_tolerance
+from fogd.calibration.training import PLAY_LAGS_S, UNDITHER_NOISE_STEPS, UNDITHER_TOLERANCE, shortest_within_tolerance
 from fogd.core.columns import BLOCK_S
 from fogd.core.errorstats import block_means, centred_within_runs, detrended_stats
 from fogd.core.inputs import (
@@ -70,6 +73,7 @@ from fogd.core.inputs import (
 from fogd.core.dequantise import DEFAULT_PACE, dequantise_batch, smoothed_batch
 from fogd.core.lag import lag_batch
 from fogd.core.play import play_batch
+from fogd.core.undither import DEFAULT_TAU_S, undither_batch
 from fogd.simulation.profiles import builtin
 from fogd.errors import FogdError
 from fogd.simulation.simulator import Simulation, params_for
@@ -125,6 +129,8 @@ def temperature(run: SimRun, spec: str) -> np.ndarray:
         out = moving_mean(run.true_c if name == "tma" else run.read_c, round(float(window) * run.rate_hz))
         if name == "inv":
             out = undither(out, run.resolution_c, float(noise) if noise else run.noise_c)
+    elif name == "und":
+        out = undither_batch(run.read_c, run.resolution_c, float(value), DEFAULT_TAU_S, run.rate_hz)
     elif name == "fb":
         from scipy.signal import filtfilt
 
@@ -254,6 +260,17 @@ def score(run: SimRun, comp_dph: np.ndarray) -> float:
 def case_scores(calibration: list[SimRun], held_out: list[SimRun], fit_spec: str, serve_spec: str, specs,
                 ridge: float | str, play: str | None = None, target: str = "rate",
                 rate_prior: str = "none") -> tuple[list[float], Trend]:  # fmt: skip
+    if fit_spec == serve_spec == "und:auto":  # as training.with_undither, with the reading's play while it chooses
+        resolution_c = calibration[0].resolution_c
+        noises = [0.0] + [steps * resolution_c for steps in UNDITHER_NOISE_STEPS]
+        trials = [(case_scores(calibration, held_out, f"und:{noise}" if noise else "read", f"und:{noise}" if noise else
+                               "read", with_play_lag_s(specs, 0.0), ridge, play, target, rate_prior)[1].fit_rmse_dph, noise)
+                  for noise in noises]  # fmt: skip
+        least = min(residual for residual, _ in trials)
+        noise = next(noise for residual, noise in trials if residual <= least * (1.0 + UNDITHER_TOLERANCE))
+        chosen = f"und:{noise}" if noise else "read"
+        print(f"    (und:auto took {chosen})")
+        return case_scores(calibration, held_out, chosen, chosen, specs, ridge, play, target, rate_prior)
     if any(spec.play_lag_auto for spec in specs):  # chosen as fogd-train chooses it, by the residual on the blocks
         trials = [case_scores(calibration, held_out, fit_spec, serve_spec, with_play_lag_s(specs, lag_s), ridge, play,
                               target, rate_prior) for lag_s in PLAY_LAGS_S]  # fmt: skip

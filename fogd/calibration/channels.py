@@ -19,6 +19,7 @@ from contextlib import nullcontext
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
 from joblib import Parallel, delayed
 
 from fogd.calibration.features import Inputs, run_inputs, shared_inputs
@@ -28,10 +29,11 @@ from fogd.calibration.models.folds import MIN_RUNS_LEFT_OUT, drift_rmse
 from fogd.calibration.replay import replay, replay_table
 from fogd.calibration.selection import select, table_lines
 from fogd.calibration.tables import epsilon_key, error_table, unit_named
-from fogd.calibration.training import TrainConfig, Trained, for_sensor, prepare, train
+from fogd.calibration.training import TrainConfig, Trained, for_sensor, prepare, sensor_noise_c, train
 from fogd.core import modelfile
-from fogd.core.columns import SINGLE_CHANNEL, channel_unit
-from fogd.core.inputs import InputSpec, describe_inputs
+from fogd.core.columns import SINGLE_CHANNEL, block_samples, channel_unit
+from fogd.core.errorstats import block_means
+from fogd.core.inputs import TEMP_LAG, InputSpec, describe_inputs
 from fogd.core.runio import Run
 from fogd.errors import FogdError, InputError
 
@@ -59,6 +61,7 @@ class ChannelJob:
     runs: list[Run]
     holdouts: list[Run] = field(default_factory=list)
     inputs: list[Inputs] | None = None  # the runs' temperature inputs, computed once for the unit's channels
+    sensor_noise_c: float | None = None  # the unit's fine sensor's noise, chosen once for its channels (0: none)
 
     @property
     def title(self) -> str:
@@ -130,11 +133,33 @@ def channel_jobs(unit: str, runs: list[Run], holdouts: list[Run], channels: list
     chosen = list(dict.fromkeys(channels)) if channels else common
     if not chosen:
         raise InputError(f"{where}the runs have no channel in common")
-    # the sets as training will compute them (dequantised for a coarse sensor), so that every channel finds them
-    sets = [for_sensor(runs, dataclasses.replace(settings.config, inputs=specs)).inputs for specs in settings.sets]
+    # the channels share the unit's temperature sensor: a fine one's noise (fogd.calibration.training.with_undither)
+    # is chosen once, on the channel whose drift stands out most from its noise
+    noise_c = settings.config.sensor_noise_c
+    lag_sets = [specs for specs in settings.sets if any(spec.kind == TEMP_LAG for spec in specs)]
+    if noise_c is None and lag_sets:
+        clearest = max(chosen, key=lambda name: drift_to_noise([run.channel(name) for run in runs], settings.config.block_s))
+        noise_c = sensor_noise_c([run.channel(clearest) for run in runs], dataclasses.replace(settings.config, inputs=lag_sets[0]))
+    config = dataclasses.replace(settings.config, sensor_noise_c=noise_c)
+    # the sets as training will compute them (dequantised or undithered), so that every channel finds them
+    sets = [for_sensor(runs, dataclasses.replace(config, inputs=specs)).inputs for specs in settings.sets]
     inputs = [run_inputs(run, sets, settings.config.smoothed_fit) for run in runs] if len(chosen) > 1 else None
-    return [ChannelJob(unit, name, [run.channel(name) for run in runs], [run.channel(name) for run in holdouts], inputs)
+    return [ChannelJob(unit, name, [run.channel(name) for run in runs], [run.channel(name) for run in holdouts], inputs,
+                       noise_c)
             for name in chosen]  # fmt: skip
+
+
+def drift_to_noise(runs: list[Run], block_s: float) -> float:
+    """How far a channel's thermal drift stands out from its noise: the std of its block means about each run's
+    mean over the block-to-block noise (the std of successive differences over root 2: drift is smooth)."""
+    drift, noise = [], []
+    for run in runs:
+        means, _ = block_means(run.rate_dph, np.isfinite(run.rate_dph), block_samples(block_s, run.rate_hz))
+        means = means[np.isfinite(means)]
+        drift.append(means - means.mean() if means.size else means)
+        noise.append(np.diff(means) / np.sqrt(2.0))
+    drift_all, noise_all = np.concatenate(drift), np.concatenate(noise)
+    return float(np.std(drift_all) / np.std(noise_all)) if noise_all.size > 1 and np.std(noise_all) > 0 else 0.0
 
 
 def fit_channels(jobs: list[ChannelJob], settings: Settings, n_jobs: int = 1) -> list[ChannelFit]:
@@ -164,6 +189,8 @@ def fit_channel(job: ChannelJob, settings: Settings, *, live: bool = False) -> C
 def _fit(job: ChannelJob, settings: Settings, result: ChannelFit) -> None:
     say = result.transcript
     config = settings.config
+    if job.sensor_noise_c is not None:  # the unit's choice, for all its channels
+        config = dataclasses.replace(config, sensor_noise_c=job.sensor_noise_c)
     if job.title and not say.live:  # a parallel run's transcripts, printed one after another
         say.out(f"\n=== {job.title} ===")
     if job.channel is not None and config.name:
@@ -263,6 +290,11 @@ def summary(trained: Trained, unit: str = "deg/h") -> list[str]:
                      f"{', '.join(f'{value:g}' for value in resolutions)} C (--sensor-resolution-c 0: the readings); "
                      + ("fitted from its offline estimate (--fit-temperature causal: as the daemon computes it)"
                         if smoothed else "fitted as the daemon computes it"))  # fmt: skip
+    undithered = {spec.source for spec in trained.model.inputs if spec.undither_c is not None}
+    for _, resolution_c, noise_c, tau_s in sorted(undithered):
+        lines.append(f"inputs: {describe_inputs(trained.model.inputs)}: the sensor reports steps of {resolution_c:g} C; "
+                     f"their flicker read as a {noise_c:.2g} C noise, averaged over {tau_s:g} s "
+                     "(--sensor-noise-c 0: the readings)")  # fmt: skip
     if trained.fitted.cv_rmse_dph is not None:
         lines.append(f"held-out (cv) drift RMSE: {trained.fitted.cv_rmse_dph:.3e} {unit} (about each run's mean), "
                      f"uncompensated {uncompensated_drift_dph(trained):.3e} {unit}")

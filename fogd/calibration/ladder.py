@@ -281,9 +281,11 @@ def climb(runs, config: TrainConfig, rungs: tuple[Rung, ...] = RUNGS, log: Calla
           unit: str = "deg/h", average_s: float = 0.5, step_s: float = 0.0) -> Ladder:  # fmt: skip
     """Score every rung on the runs' time-respecting folds, choose by the one-standard-error rule and fit the
     chosen rung on all the runs (`average_s`, `step_s`: the eq. 16 estimator's, for a rung's rate input)."""
-    # once per input set (two rungs share the lag bank, whose play's lag for_sensor chooses on the runs)
-    sets = {text: for_sensor(runs, dataclasses.replace(config, inputs=parse_inputs(text, average_s, step_s))).inputs
-            for text in dict.fromkeys(rung.inputs_text for rung in rungs)}  # fmt: skip
+    # once per input set (two rungs share the lag bank, whose play's lag and sensor estimate for_sensor chooses
+    # on the runs); each set's config keeps what was chosen
+    configs = {text: for_sensor(runs, dataclasses.replace(config, inputs=parse_inputs(text, average_s, step_s)))
+               for text in dict.fromkeys(rung.inputs_text for rung in rungs)}  # fmt: skip
+    sets = {text: chosen.inputs for text, chosen in configs.items()}
     common_s = max((spec.estimator.window_s for specs in sets.values() for spec in specs if spec.estimator is not None),
                    default=0.0)  # fmt: skip
     gap = max(gap_rows(specs, config.block_s) for specs in sets.values())
@@ -293,7 +295,7 @@ def climb(runs, config: TrainConfig, rungs: tuple[Rung, ...] = RUNGS, log: Calla
     for rung in rungs:
         specs = sets[rung.inputs_text]
         options = options_for_inputs(dataclasses.replace(config.fit, search=rung.search), specs)
-        rung_config = dataclasses.replace(config, method=rung.method, inputs=specs, fit=options)
+        rung_config = dataclasses.replace(configs[rung.inputs_text], method=rung.method, fit=options)
         started = time.perf_counter()
         try:
             prepared = prepare(runs, rung_config, min_warmup_s=common_s)
@@ -325,7 +327,7 @@ def climb(runs, config: TrainConfig, rungs: tuple[Rung, ...] = RUNGS, log: Calla
     chosen = choose(scored)
     rung = chosen.rung
     options = options_for_inputs(dataclasses.replace(config.fit, search=rung.search), chosen.inputs)
-    final = dataclasses.replace(config, method=rung.method, inputs=chosen.inputs, fit=options)
+    final = dataclasses.replace(configs[rung.inputs_text], method=rung.method, fit=options)
     trained = (no_compensation(runs, final, chosen.prepared) if rung.method == NONE else
                fit_family(runs, final, chosen.prepared, rung.method))  # fmt: skip
     n_runs = len(np.unique(groups))

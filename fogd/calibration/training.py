@@ -23,6 +23,7 @@ from fogd.core.frozen import FrozenModel
 from fogd.core.inputs import (
     DEFAULT_INPUTS_TEXT,
     MAX_RESOLUTION_C,
+    TEMP_LAG,
     InputSpec,
     dequantised,
     dequantises,
@@ -33,10 +34,13 @@ from fogd.core.inputs import (
     shifted_columns,
     static_columns,
     temperature_columns,
+    undithered,
+    undithers,
     with_play_lag_s,
 )
 from fogd.core.play import play_batch
 from fogd.core.runio import Run
+from fogd.core.undither import MAX_NOISE_STEPS, MIN_NOISE_STEPS, MIN_RESOLUTION_C
 from fogd.errors import InputError, UsageError
 
 Trial = TypeVar("Trial")  # shortest_within_tolerance's: whatever each residual belongs to
@@ -54,6 +58,7 @@ class TrainConfig:
     name: str | None = None
     domain_guard: bool = False  # store a domain guard and its linear fallback (fogd.core.domain), as --domain-guard
     sensor_resolution_c: float | None = None  # None: detected from the runs; a coarse sensor is dequantised
+    sensor_noise_c: float | None = None  # a fine sensor's, for its undithered estimate: None chosen on the runs, 0 none
     smoothed_fit: bool = True  # fit a dequantised temperature from its offline estimate (features.training_set)
     unit: str = "deg/h"  # the channel's unit, for what training says (an accelerometer's is g)
     outside: str = outside_range.DEFAULT_POLICY  # beyond the calibrated range (fogd.core.outside_range), as --outside-range
@@ -61,23 +66,76 @@ class TrainConfig:
 
 def for_sensor(runs: list[Run], config: TrainConfig) -> TrainConfig:
     """`config` with its inputs computed from the dequantised temperature when the runs' sensor is coarse
-    (fogd.core.dequantise: a KVH's whole degrees), from the readings otherwise (inputs already marked are kept),
-    and a `play@WIDTH:auto` input's lag chosen on the runs (with_play_lag)."""
-    return with_play_lag(runs, _for_resolution(runs, config))
+    (fogd.core.dequantise: a KVH's whole degrees), from the undithered one when it is fine and the inputs are a
+    lag bank (with_undither), from the readings otherwise (inputs already marked are kept), and a
+    `play@WIDTH:auto` input's lag chosen on the runs (with_play_lag). What it chose stays in the config it
+    returns, so that a second call chooses nothing again."""
+    resolution_c = _resolution_c(runs, config)
+    if COARSE_RESOLUTION_C <= resolution_c <= MAX_RESOLUTION_C:
+        if not dequantises(config.inputs):
+            config = dataclasses.replace(config, inputs=dequantised(config.inputs, resolution_c))
+    elif MIN_RESOLUTION_C <= resolution_c < COARSE_RESOLUTION_C:
+        config = with_undither(runs, config, resolution_c)
+    return with_play_lag(runs, config)
 
 
-def _for_resolution(runs: list[Run], config: TrainConfig) -> TrainConfig:
-    if dequantises(config.inputs):
-        return config
+def _resolution_c(runs: list[Run], config: TrainConfig) -> float:
+    """The sensor's resolution: as given (0: use the readings as they are), else seen in the runs."""
     resolution_c = config.sensor_resolution_c
     if resolution_c is not None and resolution_c > MAX_RESOLUTION_C:
         raise UsageError(f"--sensor-resolution-c {resolution_c:g}: a temperature sensor's steps are at most "
                          f"{MAX_RESOLUTION_C:g} C (0: use the readings as they are)")  # fmt: skip
     if resolution_c is None:
-        resolution_c = detect_resolution_c([run.temp_c for run in runs])
-    if not COARSE_RESOLUTION_C <= resolution_c <= MAX_RESOLUTION_C:  # beyond: jumps, not a sensor's steps
+        if dequantises(config.inputs) or undithers(config.inputs):
+            return 0.0  # already decided
+        return detect_resolution_c([run.temp_c for run in runs])
+    return resolution_c
+
+
+# The undithered estimate's noise candidates, in the sensor's steps, from the gentlest (near the identity) down:
+# the coil trend's residual on the calibration blocks has a clear least at the sensor's own noise
+# (tools/trend_diagnostic.py, diffusive coil, five-run programme, seed 1, a 1/16 C sensor with 0.01 C of noise:
+# residual 0.99 mdeg/h on the readings, 0.959 / 0.935 / 0.922 / 0.929 / 0.953 at 0.25 / 0.2 / 0.16 / 0.12 / 0.08
+# steps; the worst held-out run 1.45x the floor on the readings, 1.32 / 1.26 / 1.25 / 1.27 / 1.33x with those),
+# so candidates a factor 1.6 apart lose little. The readings stay the first candidate and are kept unless an
+# estimate leaves UNDITHER_TOLERANCE less.
+UNDITHER_NOISE_STEPS = (0.4, 0.25, 0.16, 0.1, 0.06)
+UNDITHER_TOLERANCE = 0.01
+
+
+def sensor_noise_c(runs: list[Run], config: TrainConfig) -> float:
+    """The noise for_sensor would take for the runs' fine sensor (0: the readings), for the channels of one unit to
+    share (fogd.calibration.channels: they share its temperature sensor)."""
+    resolution_c = _resolution_c(runs, config)
+    if not MIN_RESOLUTION_C <= resolution_c < COARSE_RESOLUTION_C:
+        return 0.0
+    return with_undither(runs, config, resolution_c).sensor_noise_c or 0.0
+
+
+def with_undither(runs: list[Run], config: TrainConfig, resolution_c: float) -> TrainConfig:
+    """`config` with a fine sensor's lag-bank inputs computed from its undithered estimate (fogd.core.undither)
+    of the noise `config.sensor_noise_c`, or if None the noise of UNDITHER_NOISE_STEPS (or the readings) whose
+    coil trend leaves the least residual on the runs' blocks (the first within UNDITHER_TOLERANCE of it). The
+    config it returns names the noise (0: the readings), so a second call keeps the choice."""
+    noise_c = config.sensor_noise_c
+    if noise_c == 0.0 or dequantises(config.inputs) or undithers(config.inputs):
         return config
-    return dataclasses.replace(config, inputs=dequantised(config.inputs, resolution_c))
+    if noise_c is not None:
+        if not MIN_NOISE_STEPS <= noise_c / resolution_c <= MAX_NOISE_STEPS:
+            raise UsageError(f"--sensor-noise-c {noise_c:g}: {MIN_NOISE_STEPS:g} to {MAX_NOISE_STEPS:g} of the "
+                             f"sensor's {resolution_c:g} C steps (0: the readings as they are)")  # fmt: skip
+        return dataclasses.replace(config, inputs=undithered(config.inputs, resolution_c, noise_c))
+    if not any(spec.kind == TEMP_LAG for spec in config.inputs) or not _single_steps(runs, resolution_c):
+        return dataclasses.replace(config, sensor_noise_c=0.0)  # the paper's inputs (their windows average), or no staircase
+    thinned = [_thinned(run, PLAY_CHOICE_MAX_HZ) for run in runs]
+    base = with_play_lag_s(config.inputs, 0.0)  # the reading's play while the noise is chosen
+    candidates = [0.0] + [steps * resolution_c for steps in UNDITHER_NOISE_STEPS]
+    trials = [(_trend_residual_dph(thinned, undithered(base, resolution_c, noise_c or None), config), noise_c)
+              for noise_c in candidates]  # fmt: skip
+    least = min(residual for residual, _ in trials)
+    noise_c = next(noise for residual, noise in trials if residual <= least * (1.0 + UNDITHER_TOLERANCE))
+    return dataclasses.replace(config, sensor_noise_c=noise_c,
+                               inputs=undithered(config.inputs, resolution_c, noise_c or None))  # fmt: skip
 
 
 # The play's lag candidates (0: the play of the temperature itself). A gyro's hysteresis follows its coil; how far
@@ -103,17 +161,27 @@ def with_play_lag(runs: list[Run], config: TrainConfig) -> TrainConfig:
     thinned = [_thinned(run, PLAY_CHOICE_MAX_HZ) for run in runs]
     if not turns(thinned, max(spec.width_c for spec in config.inputs if spec.play_lag_auto)):
         return dataclasses.replace(config, inputs=with_play_lag_s(config.inputs, 0.0))
-    mean_dph = float(np.mean(np.concatenate([run.rate_dph for run in thinned])))
-    trials: list[tuple[float, tuple[InputSpec, ...]]] = []
-    for lag_s in PLAY_LAGS_S:
-        specs = with_play_lag_s(config.inputs, lag_s)
-        data = training_set(thinned, specs, config.block_s, 0.0, config.smoothed_fit)
-        options = dataclasses.replace(options_for_inputs(config.fit, specs), trend="coil", search=False, progress=False)
-        error = data.rate_dph - mean_dph
-        fitted = fit("pso-svr", data.x, error, data.groups, options)
-        predicted = fitted.estimator.predict((data.x - fitted.x_mean) / fitted.x_scale) * fitted.y_scale + fitted.y_mean
-        trials.append((float(np.sqrt(np.mean(centred_within_runs(error - predicted, data.groups) ** 2))), specs))
+    trials = [(_trend_residual_dph(thinned, specs, config), specs)
+              for specs in (with_play_lag_s(config.inputs, lag_s) for lag_s in PLAY_LAGS_S)]  # fmt: skip
     return dataclasses.replace(config, inputs=shortest_within_tolerance(trials))
+
+
+def _single_steps(runs: list[Run], resolution_c: float) -> bool:
+    """Whether the readings climb a staircase: most of their changes one step of `resolution_c`. A sensor whose
+    noise spans many of its steps changes by several at a time, and its readings are already dithered."""
+    changes = np.concatenate([np.abs(np.diff(run.temp_c[np.isfinite(run.temp_c)])) for run in runs])
+    changes = changes[changes > 1e-9 * resolution_c]
+    return changes.size > 0 and float(np.mean(np.abs(changes - resolution_c) <= 1e-6 * resolution_c)) >= 0.5
+
+
+def _trend_residual_dph(runs: list[Run], specs: tuple[InputSpec, ...], config: TrainConfig) -> float:
+    """The RMS residual, about each run's mean, of the coil trend over `specs` fitted to the runs' blocks."""
+    data = training_set(runs, specs, config.block_s, 0.0, config.smoothed_fit)
+    options = dataclasses.replace(options_for_inputs(config.fit, specs), trend="coil", search=False, progress=False)
+    error = data.rate_dph - float(np.mean(np.concatenate([run.rate_dph for run in runs])))
+    fitted = fit("pso-svr", data.x, error, data.groups, options)
+    predicted = fitted.estimator.predict((data.x - fitted.x_mean) / fitted.x_scale) * fitted.y_scale + fitted.y_mean
+    return float(np.sqrt(np.mean(centred_within_runs(error - predicted, data.groups) ** 2)))
 
 
 def turns(runs: list[Run], width_c: float) -> bool:

@@ -182,6 +182,13 @@ def parser() -> ArgumentParser:
              "the inputs are computed from a dequantised temperature, which the model file keeps; 0: never",
     )  # fmt: skip
     p.add_argument(
+        "--sensor-noise-c", type=non_negative_float, default=None, metavar="C",
+        help="a fine sensor's own noise (standard deviation, C) for its undithered temperature (fogd.core.undither: "
+             "the flicker of its readings between two steps tells where between them the temperature is), the "
+             "inputs of a lag bank computed from it (default: chosen on the runs, or the readings if no noise "
+             "leaves 1 %% less residual); 0: the readings as they are",
+    )  # fmt: skip
+    p.add_argument(
         "--fit-temperature", choices=("smoothed", "causal"), default="smoothed",
         help="a dequantised temperature's inputs are fitted from its offline estimate, forwards and backwards in "
              "time (smoothed: the causal estimate's lag behind a ramp is not learnt as physics) or as the daemon "
@@ -253,6 +260,7 @@ def body(argv: Sequence[str] | None) -> int:
         ),  # fmt: skip
         name=args.name,
         sensor_resolution_c=args.sensor_resolution_c,
+        sensor_noise_c=args.sensor_noise_c,
         smoothed_fit=args.fit_temperature == "smoothed",
     )
     settings = Settings(config, sets, auto=auto, compare=args.compare, log=not args.quiet, ladder=ladder,

@@ -12,6 +12,8 @@ a first-order lag fed a linear ramp has a closed form (`lag_after`, exact for th
 fogd.core.lag at the model's rate), so the lags cross hours of history in one step per block; the play operator
 of a piecewise-linear input depends only on its vertices; eq. 16 windows, dequantisers and the last stretch of
 every input are fed the full-rate samples (the raw tail where there is one, else the line through the blocks).
+An undithered input (fogd.core.undither) reads the block means as what they are, means of the readings: its
+lag is primed like any lag and the earlier history is taken through its inverse.
 The cost of decimation is the lag of a block's deviation from that line: tests/test_history.py measures it.
 A gap (a restart) is bridged the same way: the line from the last saved reading to the first new one (`bridge`).
 """
@@ -29,6 +31,7 @@ from fogd.core.estimator import TempRateEstimator
 from fogd.core.inputs import InputBank, InputSpec
 from fogd.core.lag import LagFilter
 from fogd.core.play import LaggedPlay, PlayFilter
+from fogd.core.undither import Undither
 
 STEP_S = 1.0
 SPAN_FACTOR = 5.0  # the history covers this many of the longest lag's time constants (e^-5: 0.7 % remains)
@@ -205,25 +208,30 @@ class TempHistory:
         recent = self.recent(count)
         start_s = self.last[0] - (len(recent) - 1) / self.rate_hz
         before = [point for point in self.points() if point[0] < start_s] + [(start_s, recent[0])]
-        sources = {None: recent}
-        for key, dequantiser in bank.dequantisers.items():
-            sources[key] = _prime_dequantiser(dequantiser, key[0], recent)
+        sources, earlier = {None: recent}, {None: before}
+        for key, source in bank.sources.items():
+            if isinstance(source, Undither):
+                sources[key] = _prime_undither(source, before, recent, self.rate_hz)
+                lagged = lag_at_points(before, source.tau_s, self.rate_hz)  # its own average at each point
+                earlier[key] = [(t_s, source.invert_one(mean_c)) for (t_s, _), mean_c in zip(before[:-1], lagged)]
+                earlier[key].append((start_s, sources[key][0]))
+            else:  # (a dequantised source's earlier history: the block means, which its estimate tracks)
+                sources[key], earlier[key] = _prime_dequantiser(source, key[1], recent), before
         for spec, part in zip(bank.specs, bank.parts):
-            full = sources[spec.source]
+            full, points = sources[spec.source], earlier[spec.source]
             if isinstance(part, LagFilter):
-                # (a dequantised source's earlier history: the block means, which its estimate tracks)
-                part.set_value(lag_through(before, part.tau_s, self.rate_hz))
+                part.set_value(lag_through(points, part.tau_s, self.rate_hz))
                 _feed(part, full[1:])
             elif isinstance(part, LaggedPlay):  # the play of the lag at each point (a lag of a line is smooth)
                 part.reset()
-                lagged = lag_at_points(before, part.lag.tau_s, self.rate_hz)
+                lagged = lag_at_points(points, part.lag.tau_s, self.rate_hz)
                 for temp_c in lagged:
                     part.play.update_one(temp_c)
                 part.lag.set_value(lagged[-1])
                 _feed(part, full[1:])
             elif isinstance(part, PlayFilter):
                 part.reset()
-                for _, temp_c in before:
+                for _, temp_c in points:
                     part.update_one(temp_c)
                 _feed(part, full[1:])
             elif isinstance(part, TempRateEstimator):
@@ -251,6 +259,19 @@ def _prime_dequantiser(dequantiser: Dequantiser, resolution_c: float, recent: li
     out: list[float] = []
     for start in range(0, len(readings), FEED_CHUNK):
         out.extend(dequantiser.update(np.array(readings[start : start + FEED_CHUNK])).tolist())
+    return out
+
+
+def _prime_undither(undither: Undither, before: list[tuple[float, float]], recent: list[float],
+                    rate_hz: float) -> list[float]:  # fmt: skip
+    """The undither's lag primed through the history before `recent` (the block means are means of the readings,
+    what its lag estimates), then run over `recent`; its estimates."""
+    undither.reset()
+    lagged_c = lag_through(before, undither.tau_s, rate_hz)
+    undither.lag.set_value(lagged_c)
+    out = [undither.invert_one(lagged_c)]
+    for start in range(1, len(recent), FEED_CHUNK):
+        out.extend(undither.update(np.array(recent[start : start + FEED_CHUNK], dtype=np.float64)).tolist())
     return out
 
 

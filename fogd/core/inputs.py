@@ -15,7 +15,10 @@ leaves the play's lag to fogd-train (fogd.calibration.training.with_play_lag), a
 Any of them may be computed from the dequantised temperature of a coarse sensor instead of its readings
 (`dequantise_c`, the sensor's resolution; fogd.core.dequantise), one dequantiser shared by all the inputs;
 `dequantise_pace` names how that estimate runs between crossings (None: "linear", what model files written
-before it existed were trained with).
+before it existed were trained with). Or from a fine sensor's undithered estimate (`undither_c`, its
+resolution, with `undither_noise_c` and `undither_tau_s`; fogd.core.undither). Each input's `source` names
+what it is computed from: None (the readings), ("dequantise", resolution, pace) or ("undither", resolution,
+noise, lag); inputs with the same source share one estimate.
 """
 
 from __future__ import annotations
@@ -29,6 +32,14 @@ from fogd.core.dequantise import DEFAULT_PACE, PACES, Dequantiser, dequantise_ba
 from fogd.core.estimator import EstimatorSettings, TempRateEstimator, temp_rate_batch
 from fogd.core.lag import MAX_TAU_S, LagFilter, update_lags_one
 from fogd.core.play import MAX_WIDTH_C, LaggedPlay, PlayFilter
+from fogd.core.undither import (
+    DEFAULT_TAU_S,
+    MAX_NOISE_STEPS,
+    MIN_NOISE_STEPS,
+    MIN_RESOLUTION_C,
+    Undither,
+    undither_batch,
+)
 
 TEMP = "temp_c"
 TEMP_RATE = "temp_rate_cps"
@@ -45,14 +56,17 @@ INPUTS_SYNTAX = (
 )
 MAX_INPUTS = 16
 MAX_RESOLUTION_C = 10.0
+DEQUANTISE = "dequantise"
+UNDITHER = "undither"
+Source = tuple | None  # an input's `source`: None, (DEQUANTISE, resolution, pace) or (UNDITHER, resolution, noise, lag)
 
 
 @dataclass(frozen=True)
 class InputSpec:
     """One model input: `temp_c`, `temp_rate_cps` with its eq. 16 estimator settings, `temp_lag_c` with
     its time constant `tau_s`, or `temp_play` with its width `width_c` (and its lag `play_lag_s`, or
-    `play_lag_auto` until fogd-train chooses it); of the readings, or of their dequantised estimate
-    (`dequantise_c`)."""
+    `play_lag_auto` until fogd-train chooses it); of the readings, of their dequantised estimate
+    (`dequantise_c`) or of their undithered estimate (`undither_c`, `undither_noise_c`, `undither_tau_s`)."""
 
     kind: str
     estimator: EstimatorSettings | None = None
@@ -62,6 +76,9 @@ class InputSpec:
     width_c: float | None = None
     play_lag_s: float | None = None  # the play of this lag of the temperature (None: of the temperature)
     play_lag_auto: bool = False  # `play@WIDTH:auto`: play_lag_s still to be chosen (never in a model file)
+    undither_c: float | None = None  # a fine sensor's resolution when computed from fogd.core.undither's estimate
+    undither_noise_c: float | None = None  # the sensor noise that estimate assumes
+    undither_tau_s: float | None = None  # the lag that averages the readings before its inverse
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -85,11 +102,27 @@ class InputSpec:
         if self.dequantise_pace is not None and (self.dequantise_c is None or self.dequantise_pace not in PACES[1:]):
             raise ValueError(f"dequantiser pace {self.dequantise_pace!r}: one of {', '.join(PACES[1:])}, "
                              "for a dequantised input only")
+        undither = (self.undither_c, self.undither_noise_c, self.undither_tau_s)
+        if any(value is not None for value in undither):
+            if any(value is None for value in undither) or self.dequantise_c is not None:
+                raise ValueError("an undithered input needs its resolution, noise and lag, and is not dequantised")
+            resolution_c, noise_c, tau_s = undither
+            if not MIN_RESOLUTION_C <= resolution_c <= MAX_RESOLUTION_C:
+                raise ValueError(f"sensor resolution must be {MIN_RESOLUTION_C:g} to {MAX_RESOLUTION_C:g} C, "
+                                 f"got {resolution_c}")  # fmt: skip
+            if not MIN_NOISE_STEPS <= noise_c / resolution_c <= MAX_NOISE_STEPS:
+                raise ValueError(f"sensor noise must be {MIN_NOISE_STEPS:g} to {MAX_NOISE_STEPS:g} of its resolution "
+                                 f"({resolution_c:g} C), got {noise_c} C")  # fmt: skip
+            if not 0 < tau_s <= MAX_TAU_S:
+                raise ValueError(f"the undither lag must be in (0, {MAX_TAU_S:g}] s, got {tau_s}")
 
     @property
-    def source(self) -> tuple[float, str] | None:
-        """What the input is computed from: None (the readings) or the dequantiser's (resolution, pace)."""
-        return None if self.dequantise_c is None else (self.dequantise_c, self.dequantise_pace or PACES[0])
+    def source(self) -> Source:
+        """What the input is computed from: None (the readings), the dequantiser's (DEQUANTISE, resolution, pace)
+        or the undither's (UNDITHER, resolution, noise, lag)."""
+        if self.undither_c is not None:
+            return (UNDITHER, self.undither_c, self.undither_noise_c, self.undither_tau_s)
+        return None if self.dequantise_c is None else (DEQUANTISE, self.dequantise_c, self.dequantise_pace or PACES[0])
 
     @property
     def label(self) -> str:
@@ -122,6 +155,9 @@ class InputSpec:
         extra = {} if self.dequantise_c is None else {"dequantise_c": float(self.dequantise_c)}
         if self.dequantise_pace is not None:
             extra["dequantise_pace"] = self.dequantise_pace
+        if self.undither_c is not None:
+            extra |= {"undither_c": float(self.undither_c), "undither_noise_c": float(self.undither_noise_c),
+                      "undither_tau_s": float(self.undither_tau_s)}  # fmt: skip
         if self.estimator is not None:
             return {"kind": self.kind, **self.estimator.to_dict(), **extra}
         if self.tau_s is not None:
@@ -206,9 +242,11 @@ def _float_or_none(text: str) -> float | None:
 
 def describe_inputs(specs: tuple[InputSpec, ...]) -> str:
     """The `--inputs` spelling of a whole input set (two or more lags in a row as one `lags@` bank), followed
-    by the resolution it dequantises, if any."""
+    by the resolution it dequantises, or the resolution and noise it undithers, if any."""
     resolutions = sorted({spec.dequantise_c for spec in specs if spec.dequantise_c is not None})
     suffix = "".join(f" (dequantised {resolution_c:g} C)" for resolution_c in resolutions)
+    undithers = sorted({spec.source[1:3] for spec in specs if spec.undither_c is not None})
+    suffix += "".join(f" (undithered {resolution_c:g} C, noise {noise_c:.2g} C)" for resolution_c, noise_c in undithers)
     return _describe_plain(specs) + suffix
 
 
@@ -218,6 +256,17 @@ def dequantised(specs: tuple[InputSpec, ...], resolution_c: float | None,
     the readings), the estimate running at `pace` between crossings."""
     stored = None if resolution_c is None or pace == PACES[0] else pace
     return tuple(dataclasses.replace(spec, dequantise_c=resolution_c, dequantise_pace=stored) for spec in specs)
+
+
+def undithered(specs: tuple[InputSpec, ...], resolution_c: float | None, noise_c: float | None = None,
+               tau_s: float = DEFAULT_TAU_S) -> tuple[InputSpec, ...]:  # fmt: skip
+    """The same inputs computed from the undithered estimate of a fine sensor of `resolution_c` with noise
+    `noise_c` (None: from the readings)."""
+    if resolution_c is None or noise_c is None:
+        return tuple(dataclasses.replace(spec, undither_c=None, undither_noise_c=None, undither_tau_s=None)
+                     for spec in specs)  # fmt: skip
+    return tuple(dataclasses.replace(spec, undither_c=resolution_c, undither_noise_c=noise_c, undither_tau_s=tau_s)
+                 for spec in specs)  # fmt: skip
 
 
 def _describe_plain(specs: tuple[InputSpec, ...]) -> str:
@@ -262,10 +311,15 @@ def dequantises(specs: tuple[InputSpec, ...]) -> bool:
     return any(spec.dequantise_c is not None for spec in specs)
 
 
+def undithers(specs: tuple[InputSpec, ...]) -> bool:
+    """Whether some input is computed from a fine sensor's undithered estimate."""
+    return any(spec.undither_c is not None for spec in specs)
+
+
 def dynamic_inputs(specs: tuple[InputSpec, ...]) -> bool:
-    """Whether the inputs carry a thermal state (a lag bank, a play operator, a dequantised estimate) beyond the
-    paper's temperature and eq. 16 rates."""
-    return dequantises(specs) or any(spec.kind not in (TEMP, TEMP_RATE) for spec in specs)
+    """Whether the inputs carry a thermal state (a lag bank, a play operator, a dequantised or undithered
+    estimate) beyond the paper's temperature and eq. 16 rates."""
+    return dequantises(specs) or undithers(specs) or any(spec.kind not in (TEMP, TEMP_RATE) for spec in specs)
 
 
 def kernel_columns(specs: tuple[InputSpec, ...]) -> tuple[int, ...] | None:
@@ -356,9 +410,7 @@ def inputs_batch(temp_c: np.ndarray, specs: tuple[InputSpec, ...], rate_hz: floa
     """All inputs for a whole run of finite temperatures: an (n, len(specs)) array. `smoothed` (fitting only)
     computes the dequantised inputs from the offline estimate (fogd.core.dequantise.smoothed_batch)."""
     temp_c = np.asarray(temp_c, dtype=np.float64)
-    dequantise = smoothed_batch if smoothed else dequantise_batch
-    sources = {key: temp_c if key is None else dequantise(temp_c, key[0], rate_hz, key[1])
-               for key in _sources(specs)}  # fmt: skip
+    sources = {key: source_batch(temp_c, key, rate_hz, smoothed) for key in _sources(specs)}
     columns = [_column_batch(sources[spec.source], spec, rate_hz) for spec in specs]
     return np.column_stack(columns) if columns else np.empty((temp_c.size, 0))
 
@@ -373,8 +425,27 @@ def _column_batch(temp_c: np.ndarray, spec: InputSpec, rate_hz: float) -> np.nda
     return temp_c
 
 
-def _sources(specs: tuple[InputSpec, ...]) -> list[tuple[float, str] | None]:
-    """The temperature sources the inputs need: None (the readings) and each dequantiser's (resolution, pace)."""
+def source_batch(temp_c: np.ndarray, key: Source, rate_hz: float, smoothed: bool = False) -> np.ndarray:
+    """The temperature `key` (an input's `source`) over a whole run of readings; `smoothed` (fitting only) takes
+    a dequantiser's offline estimate (fogd.core.dequantise.smoothed_batch)."""
+    if key is None:
+        return temp_c
+    if key[0] == DEQUANTISE:
+        return (smoothed_batch if smoothed else dequantise_batch)(temp_c, key[1], rate_hz, key[2])
+    return undither_batch(temp_c, key[1], key[2], key[3], rate_hz)
+
+
+def source_filter(key: Source, rate_hz: float) -> Dequantiser | Undither | None:
+    """The streaming estimate `key` names (None: the readings themselves)."""
+    if key is None:
+        return None
+    if key[0] == DEQUANTISE:
+        return Dequantiser(key[1], rate_hz, key[2])
+    return Undither(key[1], key[2], key[3], rate_hz)
+
+
+def _sources(specs: tuple[InputSpec, ...]) -> list[Source]:
+    """The temperature sources the inputs need, each once: None (the readings) and each estimate's key."""
     return list(dict.fromkeys(spec.source for spec in specs))
 
 
@@ -402,15 +473,16 @@ class InputBank:
         self.rate_hz = float(rate_hz)
         self._estimators = [_streaming(spec, rate_hz) for spec in specs]
         self._sources = [spec.source for spec in specs]
-        self._dequantisers = {key: Dequantiser(key[0], rate_hz, key[1])
-                              for key in _sources(specs) if key is not None}  # fmt: skip
+        keys = _sources(specs)
+        self._filters = {key: source_filter(key, rate_hz) for key in keys if key is not None}
         self.warmup = warmup_samples(specs, rate_hz)
         self.count = 0
-        # update_one's row: the lags of the readings (a run of columns: fogd-train's default bank) in one
-        # update_lags_one call, the inputs before and after them one call each
-        lags = [column for column, (estimator, source) in enumerate(zip(self._estimators, self._sources))
-                if isinstance(estimator, LagFilter) and source is None]  # fmt: skip
-        run = len(lags) > 1 and lags == list(range(lags[0], lags[-1] + 1)) and not self._dequantisers
+        # update_one's row, when every input has the same source (fogd-train's models): that source's estimate
+        # once, the lags (a run of columns: fogd-train's default bank) in one update_lags_one call, the inputs
+        # before and after them one call each
+        self._shared = self._filters.get(keys[0]) if len(keys) == 1 else None
+        lags = [column for column, estimator in enumerate(self._estimators) if isinstance(estimator, LagFilter)]
+        run = len(keys) == 1 and len(lags) > 1 and lags == list(range(lags[0], lags[-1] + 1))
         self._lag_run = (self._estimators[: lags[0]], self._estimators[lags[0] : lags[-1] + 1],
                          self._estimators[lags[-1] + 1 :]) if run else None  # fmt: skip
 
@@ -424,21 +496,22 @@ class InputBank:
         return self._estimators
 
     @property
-    def dequantisers(self) -> dict[tuple[float, str], Dequantiser]:
-        return self._dequantisers
+    def sources(self) -> dict[tuple, Dequantiser | Undither]:
+        """Each estimate the inputs are computed from (a dequantiser, an undither), by its key."""
+        return self._filters
 
     def reset(self) -> None:
         for estimator in self._estimators:
             if estimator is not None:
                 estimator.reset()
-        for dequantiser in self._dequantisers.values():
-            dequantiser.reset()
+        for source in self._filters.values():
+            source.reset()
         self.count = 0
 
     def update(self, temp_c: np.ndarray) -> np.ndarray:
         temp_c = np.atleast_1d(np.asarray(temp_c, dtype=np.float64))
         out = np.empty((temp_c.size, len(self.specs)))
-        sources = {None: temp_c} | {key: dq.update(temp_c) for key, dq in self._dequantisers.items()}
+        sources = {None: temp_c} | {key: source.update(temp_c) for key, source in self._filters.items()}
         for column, (key, estimator) in enumerate(zip(self._sources, self._estimators)):
             source = sources[key]
             out[:, column] = source if estimator is None else estimator.update(source)
@@ -449,6 +522,8 @@ class InputBank:
         """Feed one finite temperature; its input row as Python floats, the same floats `update` gives."""
         self.count += 1
         if self._lag_run is not None:
+            if self._shared is not None:
+                temp_c = self._shared.update_one(temp_c)
             before, lags, after = self._lag_run
             row = []
             for estimator in before:
@@ -457,8 +532,8 @@ class InputBank:
             for estimator in after:
                 row.append(temp_c if estimator is None else estimator.update_one(temp_c))
             return tuple(row)
-        if not self._dequantisers:
+        if not self._filters:
             return tuple([temp_c if estimator is None else estimator.update_one(temp_c) for estimator in self._estimators])
-        sources = {None: temp_c} | {key: dq.update_one(temp_c) for key, dq in self._dequantisers.items()}
+        sources = {None: temp_c} | {key: source.update_one(temp_c) for key, source in self._filters.items()}
         return tuple([sources[key] if estimator is None else estimator.update_one(sources[key])
                       for key, estimator in zip(self._sources, self._estimators)])  # fmt: skip

@@ -41,6 +41,12 @@ with `width_c`: the temperature's play operator, for a gyro's heating/cooling hy
 dequantised as in version 4. Only a model with such an input is written as version 5. Its optional `lag_s`
 makes it the play of a first-order lag of the temperature (fogd.core.play.LaggedPlay); a fogd from before the key
 refuses a file with it, as for `dequantise_pace`.
+
+A version-4 or -5 model's inputs may instead carry `undither_c`, `undither_noise_c` and `undither_tau_s`
+(all three): computed from fogd.core.undither's estimate of a fine sensor's temperature (its resolution, the
+noise it assumes and the lag that averages the readings). A model with such an input is written as version 4
+(5 with a play input); a fogd from before the keys refuses it by the unknown key, never serving the readings
+in its place.
 """
 
 from __future__ import annotations
@@ -65,18 +71,21 @@ from fogd.core.outside_range import POLICIES as OUTSIDE_POLICIES
 from fogd.core.inputs import (
     KINDS,
     MAX_RESOLUTION_C,
+    TEMP,
     TEMP_LAG,
     TEMP_PLAY,
     TEMP_RATE,
     InputSpec,
     dequantises,
     temperature_columns,
+    undithers,
 )
 from fogd.core.lag import MAX_TAU_S
 from fogd.core.play import MAX_WIDTH_C
 from fogd.errors import ModelFileError, NoModelFileError, describe_os_error
 
 MODEL_FORMAT = "fogd-model"
+UNDITHER_KEYS = {"undither_c", "undither_noise_c", "undither_tau_s"}  # an undithered input's (fogd.core.undither)
 MODEL_VERSION = 2  # a single-channel file whose inputs are all computed from the readings
 DEQUANTISED_VERSION = 4  # a single-channel file (or a channel's model) with a dequantised input
 PLAY_VERSION = 5  # a single-channel file (or a channel's model) with a play input, dequantised or not
@@ -358,7 +367,7 @@ def _version(inputs: tuple[InputSpec, ...]) -> int:
     """The oldest single-channel version that holds these inputs, so an older fogd refuses what it cannot serve."""
     if any(spec.kind == TEMP_PLAY for spec in inputs):
         return PLAY_VERSION
-    return DEQUANTISED_VERSION if dequantises(inputs) else MODEL_VERSION
+    return DEQUANTISED_VERSION if dequantises(inputs) or undithers(inputs) else MODEL_VERSION
 
 
 def from_channels_document(doc: Any, *, source: str = "model") -> ChannelModels:
@@ -539,6 +548,8 @@ class _Checker:
                     if pace not in PACES[1:]:
                         self.fail(f"{where}.dequantise_pace", f"must be one of {', '.join(PACES[1:])}")
             source = {"dequantise_c": resolution_c, "dequantise_pace": pace}
+            if dequantised and UNDITHER_KEYS & item.keys():
+                item, source = self.undither(item, where, source)
             if item["kind"] == TEMP_RATE:
                 self.mapping(item, where, {"kind", "window_s", "average_s", "step_s"})
                 settings = EstimatorSettings(
@@ -571,6 +582,18 @@ class _Checker:
         if len(set(specs)) != len(specs):
             self.fail("inputs", "lists the same input twice")
         return tuple(specs)
+
+    def undither(self, item: dict, where: str, source: dict) -> tuple[dict, dict]:
+        """An input's undither keys (all of them, valid together) taken out of `item` into its `source`."""
+        if not UNDITHER_KEYS <= item.keys() or source["dequantise_c"] is not None:
+            self.fail(where, f"needs all of {', '.join(sorted(UNDITHER_KEYS))} and no dequantise_c")
+        item = dict(item)
+        values = {key: self.number(item.pop(key), f"{where}.{key}", positive=True) for key in sorted(UNDITHER_KEYS)}
+        try:
+            InputSpec(TEMP, **values)
+        except ValueError as error:
+            self.fail(where, str(error))
+        return item, source | values
 
     def outside(self, value: Any, d: int) -> OutsideRange:
         self.mapping(value, "outside_range", OUTSIDE_KEYS, optional=OPTIONAL_OUTSIDE_KEYS)
