@@ -260,12 +260,13 @@ def score(run: SimRun, comp_dph: np.ndarray) -> float:
 def case_scores(calibration: list[SimRun], held_out: list[SimRun], fit_spec: str, serve_spec: str, specs,
                 ridge: float | str, play: str | None = None, target: str = "rate",
                 rate_prior: str = "none") -> tuple[list[float], Trend]:  # fmt: skip
-    if fit_spec == serve_spec == "und:auto":  # as training.with_undither, with the reading's play while it chooses
+    if fit_spec == serve_spec == "und:auto":  # as training.with_undither (which leaves the play out while it chooses)
         resolution_c = calibration[0].resolution_c
         noises = [0.0] + [steps * resolution_c for steps in UNDITHER_NOISE_STEPS]
-        trials = [(case_scores(calibration, held_out, f"und:{noise}" if noise else "read", f"und:{noise}" if noise else
-                               "read", with_play_lag_s(specs, 0.0), ridge, play, target, rate_prior)[1].fit_rmse_dph, noise)
-                  for noise in noises]  # fmt: skip
+        no_play = tuple(spec for spec in specs if spec.width_c is None)
+        names = [f"und:{noise}" if noise else "read" for noise in noises]
+        trials = [(case_scores(calibration, held_out, name, name, no_play, ridge, play, target, rate_prior)[1].fit_rmse_dph,
+                   noise) for name, noise in zip(names, noises)]  # fmt: skip
         least = min(residual for residual, _ in trials)
         noise = next(noise for residual, noise in trials if residual <= least * (1.0 + UNDITHER_TOLERANCE))
         chosen = f"und:{noise}" if noise else "read"

@@ -24,6 +24,7 @@ from fogd.core.inputs import (
     DEFAULT_INPUTS_TEXT,
     MAX_RESOLUTION_C,
     TEMP_LAG,
+    TEMP_PLAY,
     InputSpec,
     dequantised,
     dequantises,
@@ -128,7 +129,9 @@ def with_undither(runs: list[Run], config: TrainConfig, resolution_c: float) -> 
     if not any(spec.kind == TEMP_LAG for spec in config.inputs) or not _single_steps(runs, resolution_c):
         return dataclasses.replace(config, sensor_noise_c=0.0)  # the paper's inputs (their windows average), or no staircase
     thinned = [_thinned(run, PLAY_CHOICE_MAX_HZ) for run in runs]
-    base = with_play_lag_s(config.inputs, 0.0)  # the reading's play while the noise is chosen
+    # without the play: it turns with the temperature, hardly with the staircase, and is a Python loop per sample
+    # (the same choices and residuals within 0.2 % on the five-run programme, both coils)
+    base = tuple(spec for spec in config.inputs if spec.kind != TEMP_PLAY)
     candidates = [0.0] + [steps * resolution_c for steps in UNDITHER_NOISE_STEPS]
     trials = [(_trend_residual_dph(thinned, undithered(base, resolution_c, noise_c or None), config), noise_c)
               for noise_c in candidates]  # fmt: skip
