@@ -38,7 +38,7 @@ trend's drift RMSE on the calibration blocks (fit) and left out run by run (loro
 table of each case's worst run per seed and writes what is printed as a results page
 (docs/results/fine-sensor.md, written by the first command below).
 
-    python tools/trend_diagnostic.py --five-run --rate-prior smooth --seed 1 --seed 2 --seed 3 --seed 4 --seed 5 --case read/read --case read/read/truth --case noisy/noisy --case quant/quant --case quant+deq/quant+deq --case read+deq/read+deq --case read+deqfb/read+deq --markdown docs/results/fine-sensor.md
+    python tools/trend_diagnostic.py --five-run --rate-prior smooth --seed 1 --seed 2 --seed 3 --seed 4 --seed 5 --case read/read --case read/read/truth --case true/true --case noisy/noisy --case quant/quant --case quant+deq/quant+deq --case read+deq/read+deq --case inv:10/inv:10 --case und:auto/und:auto --markdown docs/results/fine-sensor.md
 
     python tools/trend_diagnostic.py --case read/read --case true/true --case true/read
     python tools/trend_diagnostic.py --inputs temp,lags@10..3000/7 --case true/true --case read/read --play '' --play 2
@@ -305,7 +305,9 @@ measured rate, or the true thermal error: no gyro noise) and the temperature its
 and at serve time (`read`: the readings as the daemon sees them; `noisy`: the true temperature with the sensor's
 noise, sampled and held, no steps; `quant`: the true temperature in the sensor's 1/16 C steps, no noise;
 `+deq`: through fogd.core.dequantise's causal estimate, `+deqfb` its forwards-and-backwards mean, as fogd-train
-fits a whole-degree sensor). Each cell is the worst held-out run's drift over the noise floor, as in the accuracy
+fits a whole-degree sensor; `inv:10`: a 10 s mean of the readings through the inverse of the noise-dithered
+staircase, the noise known; `und:auto`: fogd.core.undither's estimate as fogd-train now computes a fine sensor's
+inputs, its noise chosen on the calibration blocks, which the line before each of its rows names). Each cell is the worst held-out run's drift over the noise floor, as in the accuracy
 table (the lines first give every run, then each coil's table the worst per seed). A case near 1.0 says what is
 left when that one thing is removed."""
 
