@@ -312,13 +312,13 @@ def test_same_output_is_kvh_with_compensated_z(tmp_path, gyro, model_path):
                for out_frame, in_frame in zip(decoded, frames))  # fmt: skip
 
 
-@pytest.mark.parametrize("kind", ["paper's inputs", "lag bank"])
+@pytest.mark.parametrize("kind", ["paper's inputs", "lag bank", "undithered lag bank"])
 def test_the_daemon_maps_neither_scikit_learn_nor_scipy(tmp_path, gyro, model_path, kind):
     """The frozen evaluators are numpy only, and the daemon's lag filters run in Python floats: the running
     daemon, after compensating a burst of frames, has neither library's files mapped (memory, attack surface),
     with the paper's inputs or fogd-train's kind of model (a lag bank)."""
-    if kind == "lag bank":
-        model_path = lag_bank_model_file(tmp_path)
+    if kind != "paper's inputs":
+        model_path = lag_bank_model_file(tmp_path, undither=(1.0, 0.16) if kind.startswith("undithered") else None)
     out = tmp_path / "out.csv"
     fogd = start_fogd(tmp_path, gyro.path, model_path, "--out", str(out), "--out-format", "csv")
     try:
@@ -505,13 +505,16 @@ def test_multi_scale_guarded_model_through_fogd_equals_replay(tmp_path):
     assert ((flags & 32) != 0).any() and ((flags & 32) == 0).sum() > SAMPLES // 4  # both branches were used
 
 
-def lag_bank_model_file(tmp_path: Path, dequantise_c: float | None = None) -> Path:
+def lag_bank_model_file(tmp_path: Path, dequantise_c: float | None = None,
+                        undither: tuple[float, float] | None = None) -> Path:  # fmt: skip
     """A model like fogd-train's default (an SVR on a polynomial trend over a bank of lags, version 2; of the
-    dequantised temperature with `dequantise_c`, version 4), its calibrated domain ending at 22 C so that a run
-    past it is clamped."""
-    from fogd.core.inputs import dequantised, parse_inputs
+    dequantised temperature with `dequantise_c`, or of the undithered one with `undither` (resolution, noise),
+    version 4), its calibrated domain ending at 22 C so that a run past it is clamped."""
+    from fogd.core.inputs import dequantised, parse_inputs, undithered
 
     inputs = dequantised(parse_inputs("lags@0.3,1,3,10"), dequantise_c)
+    if undither:
+        inputs = undithered(inputs, *undither)
     powers = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1], [2, 0, 0, 0], [3, 0, 0, 0], [0, 2, 0, 0]]
     model = tmp_path / "bank.json"
     doc = modelfile.document(
@@ -567,3 +570,13 @@ def test_dequantised_lag_bank_model_through_fogd_equals_replay(tmp_path):
     assert json.loads(model.read_text())["version"] == 4
     expected = kvh_run_through_fogd_equals_replay(tmp_path, model, seed=7)
     assert np.unique(expected[:, 2]).size > 3  # the run's temperature crosses levels: the dequantiser works
+
+
+def test_undithered_lag_bank_model_through_fogd_equals_replay(tmp_path):
+    """fogd-train's default for a fine sensor with noise of its own (the lags of the undithered temperature, model
+    file version 4; here of the run's whole degrees, as one with 0.16 C of noise would be read): the daemon,
+    frame by frame, equals replay."""
+    model = lag_bank_model_file(tmp_path, undither=(1.0, 0.16))
+    assert json.loads(model.read_text())["version"] == 4
+    expected = kvh_run_through_fogd_equals_replay(tmp_path, model, seed=7)
+    assert np.unique(expected[:, 2]).size > 3  # the run's temperature crosses levels: the estimate moves
