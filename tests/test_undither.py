@@ -231,7 +231,7 @@ def config(**changes) -> TrainConfig:
 
 
 def test_fogd_train_takes_the_sensors_noise_where_the_staircase_costs_the_fit():
-    """0.16 steps of noise: the candidate chosen is within one of the truth (the candidates are a factor 1.4
+    """0.16 steps of noise: the candidate chosen is within one of the truth (the candidates are a factor 1.6
     apart), the config names it, and a second call keeps it."""
     runs = chamber_runs(0.16 * STEP_C, seed=1)
     chosen = with_undither(runs, config(), STEP_C)

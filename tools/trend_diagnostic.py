@@ -19,7 +19,8 @@ time, each one of
     inv:W     causal: ma:W through the inverse of the noise-dithered staircase (the expected reading as a
               function of the temperature, Gaussian noise then the quantiser); exploratory: the sensor's
               noise is taken as known from the simulation (inv:W:SIGMA assumes SIGMA C instead)
-    und:SIGMA fogd.core.undither's estimate assuming SIGMA C of noise, as the daemon serves it; `und:auto` takes
+    und:SIGMA fogd.core.undither's estimate assuming SIGMA C of noise, as the daemon serves it (und:SIGMA:TAU
+              averages the readings over a TAU s lag instead of DEFAULT_TAU_S); `und:auto` takes
               the noise as fogd-train does (training.with_undither: the readings or the candidate whose coil
               trend leaves the least residual on the calibration blocks, the play's lag then chosen on it)
 `+deq` after any of them runs it through fogd.core.dequantise's causal estimate at the sensor's resolution (the
@@ -130,7 +131,8 @@ def temperature(run: SimRun, spec: str) -> np.ndarray:
         if name == "inv":
             out = undither(out, run.resolution_c, float(noise) if noise else run.noise_c)
     elif name == "und":
-        out = undither_batch(run.read_c, run.resolution_c, float(value), DEFAULT_TAU_S, run.rate_hz)
+        noise, _, tau = value.partition(":")
+        out = undither_batch(run.read_c, run.resolution_c, float(noise), float(tau or DEFAULT_TAU_S), run.rate_hz)
     elif name == "fb":
         from scipy.signal import filtfilt
 

@@ -95,11 +95,11 @@ def _resolution_c(runs: list[Run], config: TrainConfig) -> float:
 
 # The undithered estimate's noise candidates, in the sensor's steps, from the gentlest (near the identity) down:
 # the coil trend's residual on the calibration blocks has a clear least at the sensor's own noise
-# (tools/trend_diagnostic.py, diffusive coil, five-run programme, seed 1, a 1/16 C sensor with 0.01 C of noise:
-# residual 0.99 mdeg/h on the readings, 0.959 / 0.935 / 0.922 / 0.929 / 0.953 at 0.25 / 0.2 / 0.16 / 0.12 / 0.08
-# steps; the worst held-out run 1.45x the floor on the readings, 1.32 / 1.26 / 1.25 / 1.27 / 1.33x with those),
-# so candidates a factor 1.6 apart lose little. The readings stay the first candidate and are kept unless an
-# estimate leaves UNDITHER_TOLERANCE less.
+# (tools/trend_diagnostic.py --five-run --rate-prior smooth --seed 1 --thermal diffusive --case read/read --case
+# und:SIGMA/und:SIGMA for each candidate: a 1/16 C sensor with 0.01 C of noise, residual 0.999 mdeg/h on the
+# readings, 0.989 / 0.958 / 0.933 / 0.960 / 1.002 at 0.4 / 0.25 / 0.16 / 0.1 / 0.06 steps; the worst held-out run
+# 1.45x the floor on the readings, 1.48 / 1.33 / 1.25 / 1.33 / 1.46x with those). The readings stay the first
+# candidate and are kept unless an estimate leaves UNDITHER_TOLERANCE less.
 UNDITHER_NOISE_STEPS = (0.4, 0.25, 0.16, 0.1, 0.06)
 UNDITHER_TOLERANCE = 0.01
 
@@ -130,7 +130,7 @@ def with_undither(runs: list[Run], config: TrainConfig, resolution_c: float) -> 
         return dataclasses.replace(config, sensor_noise_c=0.0)  # the paper's inputs (their windows average), or no staircase
     thinned = [_thinned(run, PLAY_CHOICE_MAX_HZ) for run in runs]
     # without the play: it turns with the temperature, hardly with the staircase, and is a Python loop per sample
-    # (the same choices and residuals within 0.2 % on the five-run programme, both coils)
+    # (a one-off check, five-run programme, seeds 1 and 2, both coils: the same choices, residuals within 0.2 %)
     base = tuple(spec for spec in config.inputs if spec.kind != TEMP_PLAY)
     candidates = [0.0] + [steps * resolution_c for steps in UNDITHER_NOISE_STEPS]
     trials = [(_trend_residual_dph(thinned, undithered(base, resolution_c, noise_c or None), config), noise_c)

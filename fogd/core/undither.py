@@ -29,8 +29,9 @@ import numpy as np
 from fogd.core.lag import MAX_TAU_S, LagFilter
 
 # The lag that averages the readings before the inverse: a few sensor samples at a sensor's 1-4 Hz, short
-# against the coil's dynamics (tools/trend_diagnostic.py, diffusive coil, five-run programme, seed 1, worst
-# held-out run with the sensor's noise known: 1.25x the floor with 2.5 s, 1.27x with 5 s, 1.45x on the readings).
+# against the coil's dynamics (tools/trend_diagnostic.py --five-run --rate-prior smooth --seed 1 --thermal
+# diffusive --case und:0.01:TAU/und:0.01:TAU, the sensor's noise known, worst held-out run: 1.25x the floor with
+# 2.5 s, 1.27x with 5 s, 1.32x with 10 s; 1.45x on the readings).
 DEFAULT_TAU_S = 2.5
 # The noise a table is built for, in steps: below MIN the inverse of a near-bare staircase amplifies every
 # flicker; above MAX the dithered staircase is a straight line and its inverse the identity.
