@@ -107,8 +107,9 @@ class KvhProtocol(Protocol):
         self.comp_axes = tuple(sorted(set(comp_axes)))
         self.comp_accel_axes = tuple(sorted(set(comp_accel_axes)))
         self._every_gyro, self._every_accel = self.comp_axes == (0, 1, 2), self.comp_accel_axes == (0, 1, 2)
-        # a single compensated gyro and no accelerometer (a one-axis model): its one pack, no loop over axes
-        self._one_gyro = self.comp_axes[0] if len(self.comp_axes) == 1 and not self.comp_accel_axes else None
+        # a single compensated gyro (a one-axis model): its one pack, no loop over axes, when no accelerometer is
+        # given to replace (the daemon's one-gyro plan gives none, whatever comp_accel_axes says)
+        self._one_gyro = self.comp_axes[0] if len(self.comp_axes) == 1 else None
         per_second = rate_hz if rotfmt == "delta" else 1.0
         self.dph_per_unit = (DPH_PER_RAD_S if angle_unit == "rad" else 3600.0) * per_second
         # delta velocity (m/s or ft/s per sample) x samples per second = m/s^2 or ft/s^2
@@ -265,7 +266,7 @@ class KvhProtocol(Protocol):
         compensated and valid; False where `_pack_axes` must go axis by axis (some invalid, a value beyond
         float32's range)."""
         one = self._one_gyro
-        if one is not None:
+        if one is not None and (accel_g is None or frame.accel_g is None or not self.comp_accel_axes):
             if frame.axis_valid[one]:  # (an invalid axis keeps its wire value, as in `_pack_axes`)
                 try:
                     _GYRO.pack_into(out, 4 + 4 * one, rate_dph[one] / self.dph_per_unit)

@@ -247,6 +247,7 @@ class Daemon:
         self._names = self.plan.covered
         sources = self.plan.sources  # one gyro channel (the usual daemon): its axis, for the row path
         self._one_axis = sources[0][1] if len(sources) == 1 and not sources[0][0] else None
+        self._one_row = self._one_axis is not None and self.plan.single  # a read's one frame: `_hand_on_one`
         self.temp_stale_s = temp_stale_s
         self.status_interval_s = status_interval_s
         self.duration_s = duration_s
@@ -490,7 +491,10 @@ class Daemon:
         if len(frames) > INLINE_MAX or ring.pushed != ring.popped or not self._handing_on.acquire(False):
             return False
         try:  # (only the reader pushes into the ring: it is still empty)
-            self._hand_on(frames, [t_rx_s] * len(frames))
+            if len(frames) == 1 and self._one_row:
+                self._hand_on_one(frames[0], t_rx_s)
+            else:
+                self._hand_on(frames, [t_rx_s] * len(frames))
         finally:
             self._handing_on.release()
         return True
@@ -517,6 +521,57 @@ class Daemon:
             chunk = self.formatter.encode(batch)
         except Exception as error:  # a value the output format cannot carry: drop that frame alone
             chunk = self._encode_each(batch, error)
+        self.writer.submit(chunk)
+
+    def _hand_on_one(self, frame: Frame, t_rx_s: float) -> None:
+        """`_hand_on` of a read's one frame on a one-gyro model (the usual read at real rates), in one call: the
+        same floats, flags, counters and bytes as `_hand_on`'s path (tests/test_one_row.py holds them equal), without
+        its batch lists and the layers between (on a box idle between frames every call a frame makes runs cold)."""
+        thermal = self.thermal
+        kind = frame.kind
+        if kind not in RATE_KINDS or (thermal is not None and thermal.pending):
+            self._hand_on([frame], [t_rx_s])
+            return
+        counters = self.counters
+        counters.records_popped += 1
+        try:
+            hold, axis = self.temperature, self._one_axis
+            if kind in TEMP_KINDS and frame.temp_c is not None:
+                hold.temp_c, hold.rx_s = frame.temp_c, t_rx_s
+            reading, present = frame.rate_dph[axis], frame.axis_present[axis]
+            held_c, temp_rate_cps, comp_dph, rate_comp_dph, flags = self.compensator.sample_one(
+                reading, hold.temp_c, frame.axis_valid[axis] and present, t_rx_s - hold.rx_s > self.temp_stale_s)
+            if flags & _OUT_OF_DOMAIN:
+                counters.samples_out_of_domain += 1
+            if flags & _CLAMPED:
+                counters.samples_clamped += 1
+            counters.samples_compensated += 1
+            latency = self.latency
+            latency.last_s = latency_s = time.monotonic() - t_rx_s
+            if latency_s > latency.max_s:
+                latency.max_s = latency_s
+            seen = self.channels_seen  # (MissingChannels.add of one gyro)
+            if seen.first_s is None:
+                seen.first_s = t_rx_s
+            if present:
+                seen.seen[0] = True
+            else:
+                counters.samples_missing_channel += 1
+            if frame.flags & TIME_BACKWARDS:
+                flags |= _TIME_BACKWARDS
+            device_s, clock = frame.t_s, self.clock
+            if device_s is not None:
+                self.rate.add([device_s])
+            t_s = clock.count / clock.rate_hz if device_s is None or device_s != device_s else device_s  # (SampleClock.times)
+            clock.count += 1
+            comp = Compensated([held_c], [temp_rate_cps], [comp_dph], [rate_comp_dph], [flags])  # type: ignore[arg-type]
+            self._newest = ([reading], comp, None)
+            if thermal is not None:
+                counters.samples_warming += thermal.observe([t_s], comp, None)
+            chunk = self.formatter.encode_one(frame, t_s, comp)
+        except Exception as error:  # as in `_hand_on`: the frame is counted, the daemon goes on
+            self._count_unencodable(1, error)
+            return
         self.writer.submit(chunk)
 
     def _encode_each(self, batch: OutputBatch, error: Exception) -> Chunk:

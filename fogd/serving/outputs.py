@@ -97,6 +97,7 @@ class Formatter:
         self._fogd_protocol = FogdProtocol()
         self._seq = 0
         self._pieces = getattr(self, f"_{out_format}" if self.plan is None else f"_{out_format}_channels")
+        self._same_one = out_format == "same" and self.plan is None
         if self.plan is not None:
             self._columns, self._row_format = _channel_columns(self.plan)
             self._accel = bool(self.plan.accel_axes)
@@ -116,6 +117,15 @@ class Formatter:
             total += len(piece)
             ends.append(total)
         return Chunk(b"".join(pieces), ends)
+
+    def encode_one(self, frame: Frame, t_s: float, comp: Compensated) -> Chunk:
+        """`encode` of a batch of one rate frame and one channel (`comp` one row long), the same bytes."""
+        if self._same_one:  # the usual output: the input frame with its rate replaced, a fresh CRC
+            rates = list(frame.rate_dph)
+            rates[self.axis] = comp.rate_comp_dph[0]
+            data = self.protocol.reencode(frame, rates)
+            return Chunk(data, [len(data)])
+        return self.encode(OutputBatch([frame], [0], [t_s], comp))
 
     def _same(self, batch: OutputBatch) -> list[bytes]:
         """Every input frame, rate frames re-encoded with the compensated rate and a fresh CRC."""

@@ -43,7 +43,7 @@ MAX_POINTS = 200_000
 SAVE_EVERY_S = 5.0
 FLUSH_SAMPLES = 256  # observed temperatures gathered before they go into the history (see Thermal)
 MIN_MEMORY_S = 600.0  # a model without lags still has its eq. 16 windows and play: a gap up to this is bridged
-_TEMP_INVALID = int(Flag.TEMP_INVALID)
+_TEMP_INVALID, _WARMING = int(Flag.TEMP_INVALID), int(Flag.WARMING)
 
 
 class StateFileError(ValueError):
@@ -254,6 +254,8 @@ class Thermal:
         temps, flags = comp.temp_c, comp.flags
         warming: list[tuple[int, float | None]] = []
         fallback = self.warming_mode == "fallback"
+        flag_only = comps is None and self.warming_mode == "compensate"  # apply_mode's whole work: the flag
+        count = 0
         for index, t_s in enumerate(times_s):
             temp_c = temps[index]
             valid = not int(flags[index]) & _TEMP_INVALID and temp_c == temp_c
@@ -261,7 +263,11 @@ class Thermal:
                 add_t_s(t_s + offset_s)
                 add_c(temp_c)
             if bound is not None and bound.update(t_s + offset_s, temp_c if valid else None):
-                warming.append((index, bound.fallback_dph() if fallback else None))
+                count += 1
+                if flag_only:
+                    flags[index] = int(flags[index]) | _WARMING
+                else:
+                    warming.append((index, bound.fallback_dph() if fallback else None))
         if len(self._pending_c) >= FLUSH_SAMPLES:
             self._flush()
         if bound is not None and not bound.active:
@@ -270,7 +276,7 @@ class Thermal:
             self.bound = None
         if warming:  # (every channel's columns, the first channel's first: the one the bound was computed for)
             apply_mode([comp] if comps is None else list(comps.values()), warming, self.warming_mode)
-        return len(warming)
+        return count
 
     # -- reload -----------------------------------------------------------------------------------------------
     def reloaded(self, models: list[FrozenModel], compensator: ChannelCompensator, *, prime: bool) -> str:
