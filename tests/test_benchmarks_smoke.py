@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -201,3 +202,73 @@ def test_the_dedicated_box_restored_condition_starts_fogd_on_its_state_file(tmp_
         log = harness.stop()
     assert step.loss == 0 and step.read > 0
     assert ("thermal state: restored" in log) == restored and ("cold start" in log) != restored, log
+
+
+def test_the_floor_process_does_fogds_job_byte_for_byte(tmp_path):
+    """bench_dedicated.py's `floor: least Python` (bench_loop_prototype.py --upto floor) is the least Python doing
+    fogd's job: over real ptys, frame by frame, its output is the bytes fogd's own daemon path makes of the same
+    frames (the demo model, no thermal state), so the floor it sets is a floor of the same work."""
+    import os
+    import pty
+    import select
+    import tty
+
+    from bench_daemon import DEMO_MODEL, frame_cycle
+
+    from fogd.core import modelfile
+    from fogd.protocols.kvh import KvhProtocol
+    from fogd.protocols.lexer import Lexer
+    from fogd.serving.daemon import Daemon
+    from fogd.serving.outputs import Formatter, Sink, Writer
+    from fogd.serving.reader import Reader
+    from fogd.serving.ring import Ring
+
+    cycle = frame_cycle()
+    frames = [cycle[i : i + 36] for i in range(0, len(cycle), 36)] * 2
+    ends = [pty.openpty() for _ in range(2)]
+    for master, slave in ends:
+        tty.setraw(master)
+        tty.setraw(slave)
+    (in_master, in_slave), (out_master, out_slave) = ends
+    process = subprocess.Popen([sys.executable, str(TOOLS / "bench_loop_prototype.py"), "--upto", "floor", str(DEMO_MODEL),
+                                os.ttyname(in_slave), os.ttyname(out_slave)])  # fmt: skip
+    floor = []
+    try:
+        # its ports are set raw (which flushes what waits on them) before it first polls: frames from then on
+        wchan = Path(f"/proc/{process.pid}/wchan")
+        for _ in range(1200):  # (the kernel names the wait it sleeps in: a minute for its imports at most)
+            if "poll" in wchan.read_text():
+                break
+            assert process.poll() is None, "the floor process ended"
+            time.sleep(0.05)
+        else:
+            pytest.fail(f"the floor process never waited in poll(): {wchan.read_text()!r}")
+        for frame in frames:  # one frame a read, as the floor's stream is; each waited for
+            os.write(in_master, frame)
+            got = b""
+            while len(got) < 36:
+                assert select.select([out_master], [], [], 30.0)[0], "the floor process wrote nothing within 30 s"
+                got += os.read(out_master, 36 - len(got))
+            floor.append(got)
+    finally:
+        process.terminate()
+        process.wait(10)
+        for fd in (in_master, in_slave, out_master, out_slave):
+            os.close(fd)
+
+    out_r, out_w = os.pipe()
+    protocol = KvhProtocol(comp_axes=(2,))
+    writer = Writer(Sink("pipe", out_w, blocking=False, on_close=lambda: os.close(out_w)))
+    reader = Reader(lambda: None, Lexer(protocol), Ring(1 << 12))
+    daemon = Daemon(reader=reader, writer=writer, formatter=Formatter("same", protocol, 2),
+                    model=modelfile.load(str(DEMO_MODEL)), rate_hz=1000.0, axis=2, temp_stale_s=2.0,
+                    status_interval_s=3600.0)  # fmt: skip
+    writer.start(b"")
+    reader.inline = daemon.take_inline
+    for frame in frames:
+        reader._push(reader.lexer.feed(frame), 0.0)
+    assert writer.close(5.0)
+    fogd = os.read(out_r, 1 << 16)
+    os.close(out_r)
+    assert b"".join(floor) == fogd
+    assert fogd != b"".join(frames)  # (the model compensated them)

@@ -9,8 +9,11 @@ all of them): fogd with the bundled demo model, fogd with fogd-train's default l
 as bench_daemon.py does) and the do-nothing relay (tools/bench_relay.py), each started fresh and stopped after.
 Both fogd processes start cold (no thermal state file), so their first 300 s run the WARMING bound
 (fogd.core.warming); a third, `fogd, restored state` (demo model), starts on a state file the harness writes for
-its port, as a restart under systemd does: the cost of a box running all day. CPU ratios to the relay are per round
-(the relay's window of the same round), their median over the rounds.
+its port, as a restart under systemd does: the cost of a box running all day. A fourth process, `floor: least
+Python` (tools/bench_loop_prototype.py --upto floor), does fogd's job on this stream with the least Python there is
+(CRC check, unpack, the demo model's own per-sample code, pack, CRC, one write; one thread, no counters): the
+ratio to the relay that fogd cannot get below in CPython on the machine, printed beside fogd's, not a target.
+CPU ratios to the relay are per round (the relay's window of the same round), their median over the rounds.
 
 - Placement: this harness keeps itself on one CPU and starts the process under test on another, alone on it
   (its affinity set to that one CPU before it starts: fogd's `cpu: auto` keeps its threads on the CPU it starts
@@ -59,7 +62,8 @@ from pathlib import Path
 
 import numpy as np
 from bench_common import machine, print_table, verdict
-from bench_daemon import DEMO_MODEL, Harness, Step, fogd_command, lag_bank_model, percentile_us, relay_command, rotated
+from bench_daemon import (DEMO_MODEL, Harness, Step, fogd_command, lag_bank_model, percentile_us, prototype_command,
+                          relay_command, rotated)
 
 from fogd.core.history import TempHistory
 from fogd.serving import thermalstate
@@ -80,6 +84,7 @@ BASELINE_P99_RATIO = {1000.0: 2.0, 5000.0: 5.3}
 BASELINE_FROM = "main at 8c3f1ad (before issue 37's daemon change), 2026-11-27"
 FOGD, LAG_BANK, RELAY = "fogd", "fogd, lag-bank model", "relay"
 RESTORED = "fogd, restored state"
+FLOOR = "floor: least Python"  # tools/bench_loop_prototype.py --upto floor: a reference, not a target
 RESTORED_HISTORY_S = 3600.0  # the state file a restart finds: an hour at the frames' mean temperature, ending now
 RESTORED_TEMP_C = 20.5
 CONDITION = ("condition: dedicated, otherwise idle box: one process under test at a time, alone on its CPU, one "
@@ -417,6 +422,8 @@ def main(argv: list[str] | None = None) -> int:
             commands[LAG_BANK] = fogd_command(lag_bank_model(Path(scratch) / "lag-bank.json"))
         if not args.quick:
             commands[RESTORED] = restored_command(args.model, Path(scratch))
+        if not args.quick:
+            commands[FLOOR] = prototype_command(os.path.abspath(args.model), "floor")
         commands[RELAY] = relay_command
         windows, placement, theirs = measure(commands, rates, rounds, lead_in_s, window_s, settle_s)
     print(f"{placement}; {idle_driver()}; {rounds} round(s) of {lead_in_s:g} s lead-in + {window_s:g} s measured per "
@@ -452,6 +459,8 @@ def main(argv: list[str] | None = None) -> int:
             rows.append([label, f"{hz:,.0f}", f"{cpu_ratio:.2f}x", f"{s['paired_low']:.2f}-{s['paired_high']:.2f}x",
                          f"{s['share'] / r['share']:.2f}x", f"{s['p50'] / r['p50']:.1f}x", f"{p99_ratio:.1f}x",
                          "-" if np.isnan(baseline) else f"{baseline:.1f}x", f"{s['lost']}"])  # fmt: skip
+            if label == FLOOR:  # its ratios are printed: what fogd is judged against; the targets are fogd's
+                continue
             checks.append((f"{label}, {hz:,.0f}/s: CPU <= {TARGET_CPU_RATIO:g}x the relay's", cpu_ratio <= TARGET_CPU_RATIO))
             checks.append((f"{label}, {hz:,.0f}/s: zero loss", s["lost"] == 0 and r["lost"] == 0))
             if not np.isnan(baseline):
