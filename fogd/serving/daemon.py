@@ -10,7 +10,10 @@ and reader -> loop -> writer was a wake-up each. So the reader thread hands a re
 in the ring before them and the loop is not busy; else they go through the ring as before (a large read, a
 batch the loop is compensating, the loop's duties running). `_handing_on` is the lock that makes the two
 paths take turns, so frames keep their order and the compensator has one user at a time; the reader only
-ever tries it, never waits for it, so it never waits on the loop or the consumer.
+ever tries it, never waits for it, so it never waits on the loop or the consumer. And the Python a frame
+runs is cut to what it needs: every call on a box idle between frames runs cold, so a read's one frame on a
+one-gyro model (the usual read at real rates) goes from the lexer's frame to the writer in one call,
+`_hand_on_one`, held equal to the batch path by tests/test_one_row.py.
 
 Temperature may arrive in its own frames at its own rate: each rate sample gets the newest temperature that
 arrived before it, flagged TEMP_STALE when that temperature is older (in receive time) than `temp_stale_s`.
