@@ -28,6 +28,7 @@ import signal
 import sys
 import time
 import tty
+from collections.abc import Iterator
 from types import SimpleNamespace
 
 
@@ -52,35 +53,17 @@ def main(argv: list[str]) -> int:
     daemon = Daemon(reader=SimpleNamespace(ring=None), writer=None, formatter=formatter, model=modelfile.load(model_path),
                     rate_hz=1000.0, axis=2, temp_stale_s=2.0, status_interval_s=3600.0)  # fmt: skip
     source, sink = _open(source_path, sink_path)
-    poller = select.poll()
-    poller.register(source, select.POLLIN)
-    pending = b""
-    while True:
-        if not poller.poll(100):
-            continue
-        try:
-            data = os.read(source, 1 << 16)
-        except BlockingIOError:
-            continue
-        if not data:
-            return 0
-        if depth == 0:
-            pending += data
-        else:
+    for data in _reads(source):
+        if depth > 0:
             t_rx_s = time.monotonic()
             frames = lexer.feed(data)
             if not frames:
                 continue
-            if depth == 1:
-                pending += data
-            else:
+            if depth > 1:
                 batch = daemon.compensate(frames, [t_rx_s] * len(frames))
-                pending += formatter.encode(batch).data if depth == 3 else data
-        while pending:  # the harness always reads: a short write is rare (it would be the writer's backlog)
-            try:
-                pending = pending[os.write(sink, pending) :]
-            except BlockingIOError:
-                select.select([], [sink], [], 0.1)
+                data = formatter.encode(batch).data if depth == 3 else data
+        _write_all(sink, data)
+    return 0
 
 
 def floor(model_path: str, source_path: str, sink_path: str) -> int:
@@ -97,6 +80,21 @@ def floor(model_path: str, source_path: str, sink_path: str) -> int:
     sample, bank = compensator.sample, compensator.bank
     body, gyro = struct.Struct(">3f3fBBh"), struct.Struct(">f")
     source, sink = _open(source_path, sink_path)
+    for data in _reads(source):
+        if len(data) == 36 and data[:4] == HEADER_A and binascii.crc32(data.translate(MIRRORED_BYTES)) == 0xFFFFFFFF:
+            x, y, z, ax, ay, az, status, seq, temp = body.unpack_from(data, 4)
+            rate_comp_dph = sample(bank, z * DPH_PER_RAD_S, float(temp), True, False)[3]
+            out = bytearray(data)
+            gyro.pack_into(out, 12, rate_comp_dph / DPH_PER_RAD_S)
+            reflected = binascii.crc32(out[:-4].translate(MIRRORED_BYTES)) ^ 0xFFFFFFFF
+            out[-4:] = reflected.to_bytes(4, "little").translate(MIRRORED_BYTES)
+            data = bytes(out)
+        _write_all(sink, data)
+    return 0
+
+
+def _reads(source: int) -> Iterator[bytes]:
+    """Each read of what has arrived on `source`, until it closes."""
     poller = select.poll()
     poller.register(source, select.POLLIN)
     while True:
@@ -107,20 +105,17 @@ def floor(model_path: str, source_path: str, sink_path: str) -> int:
         except BlockingIOError:
             continue
         if not data:
-            return 0
-        if len(data) == 36 and data[:4] == HEADER_A and binascii.crc32(data.translate(MIRRORED_BYTES)) == 0xFFFFFFFF:
-            x, y, z, ax, ay, az, status, seq, temp = body.unpack_from(data, 4)
-            rate_comp_dph = sample(bank, z * DPH_PER_RAD_S, float(temp), True, False)[3]
-            out = bytearray(data)
-            gyro.pack_into(out, 12, rate_comp_dph / DPH_PER_RAD_S)
-            reflected = binascii.crc32(out[:-4].translate(MIRRORED_BYTES)) ^ 0xFFFFFFFF
-            out[-4:] = reflected.to_bytes(4, "little").translate(MIRRORED_BYTES)
-            data = bytes(out)
-        while data:
-            try:
-                data = data[os.write(sink, data) :]
-            except BlockingIOError:
-                select.select([], [sink], [], 0.1)
+            return
+        yield data
+
+
+def _write_all(sink: int, data: bytes) -> None:
+    """The harness always reads: a short write is rare (it would be the writer's backlog)."""
+    while data:
+        try:
+            data = data[os.write(sink, data) :]
+        except BlockingIOError:
+            select.select([], [sink], [], 0.1)
 
 
 def _open(source_path: str, sink_path: str) -> tuple[int, int]:
