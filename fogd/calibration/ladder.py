@@ -105,7 +105,7 @@ from fogd.calibration.models.folds import (
 )
 from fogd.calibration.selection import fit_family, nested_residual
 from fogd.calibration.training import TrainConfig, Trained, for_sensor, no_compensation, options_for_inputs, prepare
-from fogd.core.inputs import DEFAULT_INPUTS_TEXT, InputSpec, describe_inputs, parse_inputs, shifted_columns
+from fogd.core.inputs import DEFAULT_INPUTS_TEXT, LONG_INPUTS_TEXT, InputSpec, describe_inputs, parse_inputs, shifted_columns
 from fogd.errors import InputError
 
 PAPER_INPUTS_TEXT = "temp,rate@50"  # IEEE 952's T and dT/dt (the paper's eq. 16 rate over 50 s)
@@ -129,6 +129,7 @@ class Rung:
     method: str
     inputs_text: str
     search: bool = True
+    min_runs: int = 1  # offered only on at least this many runs (`climb`)
 
 
 RUNGS = (
@@ -136,6 +137,7 @@ RUNGS = (
     Rung("linear", "linear", PAPER_INPUTS_TEXT),
     Rung("static curve", "pso-svr", PAPER_INPUTS_TEXT, search=False),
     Rung("lag bank", "pso-svr", DEFAULT_INPUTS_TEXT, search=False),
+    Rung("long lag bank", "pso-svr", LONG_INPUTS_TEXT, search=False, min_runs=MIN_RUNS_LEFT_OUT),
     Rung("lag bank + SVR", "pso-svr", DEFAULT_INPUTS_TEXT),
 )
 
@@ -280,7 +282,9 @@ def choose(scored: list[Scored]) -> Scored:
 def climb(runs, config: TrainConfig, rungs: tuple[Rung, ...] = RUNGS, log: Callable[[str], None] | None = None,
           unit: str = "deg/h", average_s: float = 0.5, step_s: float = 0.0) -> Ladder:  # fmt: skip
     """Score every rung on the runs' time-respecting folds, choose by the one-standard-error rule and fit the
-    chosen rung on all the runs (`average_s`, `step_s`: the eq. 16 estimator's, for a rung's rate input)."""
+    chosen rung on all the runs (`average_s`, `step_s`: the eq. 16 estimator's, for a rung's rate input; a rung
+    whose `min_runs` exceeds the runs' number is not offered)."""
+    rungs = tuple(rung for rung in rungs if len(runs) >= rung.min_runs)
     # once per input set (two rungs share the lag bank, whose play's lag and sensor estimate for_sensor chooses
     # on the runs); each set's config keeps what was chosen
     configs = {text: for_sensor(runs, dataclasses.replace(config, inputs=parse_inputs(text, average_s, step_s)))

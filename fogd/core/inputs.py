@@ -359,6 +359,9 @@ STATIC_MAX_TAU_S = 1000.0  # temperatures that follow the coil: the sensor's and
 # --sensor whole --schemes default, seed 1, worst run: lumped 13.55 with temp,lags@30..3000/5 fitted causally,
 # 9.92 with this bank fitted causally, 6.48 fitted from the offline estimate; diffusive 19.87, 14.32, 9.72).
 DEFAULT_INPUTS_TEXT = "temp,lags@10..3000/7,play@2:auto"
+# The ladder's "long lag bank" (fogd.calibration.ladder), offered with three calibration runs or more, where each
+# is held out whole: the bank reaching 10,000 s, for a coil whose slowest path outlasts the housing's hour.
+LONG_INPUTS_TEXT = "temp,lags@10..10000/8,play@2:auto"
 
 
 def static_columns(specs: tuple[InputSpec, ...], max_tau_s: float = STATIC_MAX_TAU_S) -> tuple[int, ...]:
