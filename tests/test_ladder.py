@@ -81,6 +81,7 @@ def test_two_runs_whose_truth_is_linear_climb_no_further_than_the_static_curve(s
     assert result.chosen.rung.name in ("linear", "static curve"), result.line()
     assert result.chosen.log_drift > linear.log_drift - 0.01, result.line()
     assert result.folds == "10 time folds (5 stretches of each run, one at a time), 30 blocks apart"
+    assert "long lag bank" not in [s.rung.name for s in result.scored]  # offered with three runs or more
 
 
 def test_a_lag_effect_climbs_to_the_lag_bank():
@@ -92,6 +93,47 @@ def test_a_lag_effect_climbs_to_the_lag_bank():
     assert line.startswith(f"ladder: chose {result.chosen.rung.name} ") and "\n" not in line
     for scored in result.scored:  # every rung's held-out figure, in the one line
         assert f"{scored.rung.name} {scored.drift_rmse_dph:.3g} ± " in line
+
+
+def slow_coil(tau_s: float):
+    """The gap between the sensor and a coil lagging it by `tau_s`."""
+    return lambda temp_c: 0.3 * (temp_c - LagFilter(tau_s, RATE_HZ).update(temp_c))
+
+
+@pytest.mark.parametrize("seed", [1, 4])
+@pytest.mark.parametrize("tau_s, chosen", [(3000.0, "lag bank"), (8000.0, "long lag bank")])
+def test_a_lag_beyond_the_default_bank_climbs_to_the_long_lag_bank_and_one_within_it_does_not(seed, tau_s, chosen):
+    """Three runs, held out one at a time: a coil 8000 s behind its sensor is beyond the default bank's 3000 s,
+    and only the long bank follows it; 3000 s is within it, and the simpler bank is kept."""
+    runs = [make_run(knots, slow_coil(tau_s), seed + i) for i, knots in enumerate((HEAT, COOL, CYCLE))]
+    result = climb(runs, TrainConfig(fit=FitOptions(particles=4, iterations=3, progress=False)))
+    assert result.chosen.rung.name == chosen, result.line()
+    lag_bank, long_bank = (next(s for s in result.scored if s.rung.name == name) for name in ("lag bank", "long lag bank"))
+    if chosen == "long lag bank":
+        assert long_bank.drift_rmse_dph < 0.5 * lag_bank.drift_rmse_dph, result.line()
+        assert max(spec.tau_s or 0.0 for spec in result.trained.model.inputs) == 10000.0
+
+
+def test_a_long_lag_bank_model_serves_from_its_file_what_it_was_chosen_for(tmp_path):
+    """fogd-train's default on three runs of a coil 8000 s behind its sensor writes the long bank; loaded from
+    the file, replayed on a fourth programme none of them had, it removes the drift down to near the noise
+    of its 100 s blocks."""
+    from fogd.calibration.replay import replay, replay_table
+    from fogd.cli import train as train_cli
+
+    paths = []
+    for seed, knots in enumerate((HEAT, COOL, CYCLE), start=1):
+        run = make_run(knots, slow_coil(8000.0), seed)
+        paths.append(tmp_path / f"run{seed}.csv")
+        np.savetxt(paths[-1], np.column_stack((run.t_s, run.rate_dph, run.temp_c)), delimiter=",",
+                   header="t_s,rate_dph,temp_c", comments="", fmt="%.9g")  # fmt: skip
+    model = tmp_path / "model.json"
+    assert train_cli.main([*map(str, paths), "-o", str(model), "--particles", "4", "--iterations", "3", "-q"]) == 0
+    assert json.loads(model.read_text())["metrics"]["held_out"]["rung"] == "long lag bank"
+    fresh = make_run([(0, 20), (0.5 * H, 20), (1.5 * H, 45), (3.5 * H, 45), (4.5 * H, 5), (6 * H, 5)], slow_coil(8000.0), 9)
+    table = replay_table(fresh, replay(modelfile.load(model), fresh), 100.0)
+    assert table.after.rmse_dph < 0.1 * table.before.rmse_dph, (table.before, table.after)
+    assert table.after.rmse_dph < 3 * NOISE_DPH / 10, table.after  # the block noise: 0.03 deg/h
 
 
 def noisy_sensor_run(knots, seed: int) -> Run:

@@ -4,8 +4,9 @@ The rungs, simplest first (`RUNGS`): no compensation at all (rung 0: the reading
 linear model whose coefficients are zero, `training.no_compensation`); IEEE 952's linear model in the temperature
 and its 50 s rate; the same
 with the static curve (the coil trend's powers 2 and 3 of the temperature); the coil trend over the lag bank
-and play operator (fogd's thermal state, no kernel); and that trend under the PSO-tuned SVR (fogd's richest
-model). Each rung is scored on folds that respect time (`fogd.calibration.models.folds.stretch_folds`:
+and play operator (fogd's thermal state, no kernel); with three runs or more, the same over a bank reaching
+10,000 s (`LONG_INPUTS_TEXT`: a coil whose slowest path outlasts the housing's hour, as on sensor_on=baseplate);
+and the default bank's trend under the PSO-tuned SVR (fogd's richest model). Each rung is scored on folds that respect time (`fogd.calibration.models.folds.stretch_folds`:
 leave-one-run-out with three runs or more; with one or two, each run cut into stretches held out one at a time,
 with a gap of the longest lag on either side, or as much of one as leaves a third of the run to train on, every
 other run trained on whole), every fold predicted by a model tuned and fitted without it
