@@ -300,7 +300,7 @@ def case_scores(calibration: list[SimRun], held_out: list[SimRun], fit_spec: str
     return out, trend
 
 
-PAGE_TITLE = "What limits the fine sensor (tools/trend_diagnostic.py)"
+PAGE_TITLE = "What limits the fine sensor"
 PAGE_INTRO = """The default's coil trend alone (no SVR), fitted on the calibration runs' 100 s blocks and replayed on the
 accuracy table's five held-out runs, with one thing changed at a time: what the trend is fitted to (the
 measured rate, or the true thermal error: no gyro noise) and the temperature its inputs are computed from at fit
@@ -339,6 +339,7 @@ def main() -> None:
                         help="another simulated gyro, as tools/accuracy_table.py --physics (repeatable)")
     parser.add_argument("--five-run", action="store_true",
                         help="calibrate on the KVH guide's five-run programme (" + " + ".join(FIVE_RUN) + ")")
+    parser.add_argument("--title", default=PAGE_TITLE, help=f"the results page's title (default: {PAGE_TITLE})")
     parser.add_argument("--markdown", metavar="PATH", help="also write what is printed, with a table of each "
                         "case's worst run per seed, as a results page (replaced whole)")  # fmt: skip
     args = parser.parse_args()
@@ -352,7 +353,7 @@ def main() -> None:
     with captured_stdout() as printed:
         run_cases(args, cases)
     physics = ", ".join(f"{key}={value}" for key, value in args.physics or []) or "the navigation preset's"
-    header = results_header(PAGE_TITLE, ["python", "tools/trend_diagnostic.py", *sys.argv[1:]],
+    header = results_header(f"{args.title} (tools/trend_diagnostic.py)", ["python", "tools/trend_diagnostic.py", *sys.argv[1:]],
                             settings=f"coil trend alone on {args.inputs}, rate prior {args.rate_prior}; calibration "
                                      f"{' + '.join(programme(args))}; physics {physics}")  # fmt: skip
     try:
