@@ -73,14 +73,16 @@ def test_linear_truth_plus_noise_is_fitted_linear():
 @pytest.mark.parametrize("seed", [1, 4])
 def test_two_runs_whose_truth_is_linear_climb_no_further_than_the_static_curve(seed):
     """A heating and a cooling run only: every richer rung fits the noise of the stretches it trains on. The
-    static curve contains linear and can only win by chance, by little (seed 4: 0.6 % on the folds' mean log
-    ratio, 1.3 standard errors: the rule's one-sided test takes the richer rung so about one time in six)."""
+    static curve contains linear and can only win by chance, by little (seed 4, 200 s blocks: 1.1 % on the folds'
+    mean log ratio; on 100 s blocks 0.6 %, 1.3 standard errors: the rule's one-sided test takes the richer rung so
+    about one time in six)."""
     runs = [make_run(HEAT, ieee952, 2 * seed), make_run(COOL, ieee952, 2 * seed + 1)]
     result = climb(runs, TrainConfig(fit=FitOptions(particles=4, iterations=3, progress=False)))
     linear = next(s for s in result.scored if s.rung.name == "linear")
     assert result.chosen.rung.name in ("linear", "static curve"), result.line()
-    assert result.chosen.log_drift > linear.log_drift - 0.01, result.line()
-    assert result.folds == "10 time folds (5 stretches of each run, one at a time), 30 blocks apart"
+    assert result.chosen.log_drift > linear.log_drift - 0.02, result.line()
+    gap = math.ceil(3000.0 / TrainConfig().block_s)  # the longest lag, in the fit's blocks
+    assert result.folds == f"10 time folds (5 stretches of each run, one at a time), {gap} blocks apart"
     assert "long lag bank" not in [s.rung.name for s in result.scored]  # offered with three runs or more
 
 

@@ -51,7 +51,7 @@ def trained_runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict[str, Tr
 def report(trained_runs: tuple[dict[str, Trained], list[Run]], tmp_path_factory: pytest.TempPathFactory) -> Path:
     trained, holdouts = trained_runs
     directory = tmp_path_factory.mktemp("out") / "new" / "report"  # created, parents too
-    return Path(write_report(str(directory), trained, "pso-svr", holdouts, 60.0))
+    return Path(write_report(str(directory), trained, "pso-svr", holdouts, 60.0, holdout_block_s=60.0))
 
 
 def test_summary_has_the_tables(report: Path) -> None:

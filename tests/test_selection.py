@@ -141,7 +141,8 @@ def test_held_out_rows_beyond_the_range_are_served_as_the_daemon_serves_them(pol
     runs = [synthetic_run("up.csv", 1, True), synthetic_run("down.csv", 2, False)]
     specs = parse_inputs("temp,lags@100..1000/3,play@1")
     options = options_for_inputs(FitOptions(particles=4, iterations=2, progress=False), specs)
-    trained = train(runs, TrainConfig(method="pso-svr", inputs=specs, fit=options, domain_guard=False, outside=policy))
+    trained = train(runs, TrainConfig(method="pso-svr", inputs=specs, fit=options, domain_guard=False, outside=policy,
+                                      block_s=100.0))  # 40 rows at either end: enough rows  # fmt: skip
     x = trained.data.x
     beyond = np.concatenate([x[:40] + [45.0, 40.0, 30.0, 20.0, 0.0], x[-40:] - [25.0, 3.0, 2.0, 1.0, 0.0],
                              x[:40] + [0.0, 0.0, 0.0, 0.0, 2.5]])  # fmt: skip

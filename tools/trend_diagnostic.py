@@ -3,7 +3,7 @@
 No swarm and no SVR: this simulates `tools/accuracy_table.py`'s calibration and held-out runs (the same
 seeds, gyro and sensor), fits only the default's least-squares coil trend (fogd.calibration.models.coil:
 the inputs linear plus the static curve at a fitted coil temperature, one offset per run) to the calibration
-runs' 100 s block means, evaluates it sample by sample on each held-out run (inputs clamped as the daemon
+runs' 200 s block means (fogd-train's FIT_BLOCK_S), evaluates it sample by sample on each held-out run (inputs clamped as the daemon
 clamps them) and prints the accuracy table's figure: the std of 100 s block means after 600 s over the noise
 floor. What changes between cases is the temperature the inputs are computed from, at fit time and at serve
 time, each one of
@@ -59,7 +59,7 @@ import numpy as np
 from fogd.calibration.models.coil import PRIORS, fit_mix, fit_rate_prior
 from fogd.calibration.models.least_squares import RunOffsetLeastSquares
 from fogd.calibration.training import PLAY_LAGS_S, UNDITHER_NOISE_STEPS, UNDITHER_TOLERANCE, shortest_within_tolerance
-from fogd.core.columns import BLOCK_S
+from fogd.core.columns import BLOCK_S, FIT_BLOCK_S
 from fogd.core.errorstats import block_means, centred_within_runs, detrended_stats
 from fogd.core.inputs import (
     DEFAULT_INPUTS_TEXT,
@@ -278,7 +278,7 @@ def case_scores(calibration: list[SimRun], held_out: list[SimRun], fit_spec: str
         trials = [case_scores(calibration, held_out, fit_spec, serve_spec, with_play_lag_s(specs, lag_s), ridge, play,
                               target, rate_prior) for lag_s in PLAY_LAGS_S]  # fmt: skip
         return shortest_within_tolerance([(trial[1].fit_rmse_dph, trial) for trial in trials])
-    block_n = round(BLOCK_S * calibration[0].rate_hz)
+    block_n = round(FIT_BLOCK_S * calibration[0].rate_hz)  # as fogd-train fits; scored on BLOCK_S
     xs, ys, groups, samples = [], [], [], []
     for index, run in enumerate(calibration):
         temp_c = temperature(run, fit_spec)
@@ -301,7 +301,7 @@ def case_scores(calibration: list[SimRun], held_out: list[SimRun], fit_spec: str
 
 
 PAGE_TITLE = "What limits the fine sensor"
-PAGE_INTRO = """The default's coil trend alone (no SVR), fitted on the calibration runs' 100 s blocks and replayed on the
+PAGE_INTRO = """The default's coil trend alone (no SVR), fitted on the calibration runs' 200 s blocks as fogd-train fits it and replayed on the
 accuracy table's five held-out runs, with one thing changed at a time: what the trend is fitted to (the
 measured rate, or the true thermal error: no gyro noise) and the temperature its inputs are computed from at fit
 and at serve time (`read`: the readings as the daemon sees them; `noisy`: the true temperature with the sensor's

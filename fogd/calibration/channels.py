@@ -31,7 +31,7 @@ from fogd.calibration.selection import select, table_lines
 from fogd.calibration.tables import epsilon_key, error_table, unit_named
 from fogd.calibration.training import TrainConfig, Trained, for_sensor, prepare, sensor_noise_c, train
 from fogd.core import modelfile
-from fogd.core.columns import SINGLE_CHANNEL, block_samples, channel_unit
+from fogd.core.columns import BLOCK_S, SINGLE_CHANNEL, block_samples, channel_unit
 from fogd.core.errorstats import block_means
 from fogd.core.inputs import TEMP_LAG, InputSpec, describe_inputs
 from fogd.core.runio import Run
@@ -254,7 +254,7 @@ def _fit(job: ChannelJob, settings: Settings, result: ChannelFit) -> None:
     say.out(error_table(rows, unit=unit))
     for holdout in job.holdouts:
         say.out(f"\nTable 4: {holdout.name}, not used for training (block means about the run mean)")
-        say.out(error_table(holdout_rows(result.trained, holdout, block_s), unit=unit))
+        say.out(error_table(holdout_rows(result.trained, holdout, BLOCK_S), unit=unit))
     result.worse = worse_than_nothing(chosen, result.held_out_dph, unit, nothing_dph)
 
 

@@ -1,7 +1,8 @@
 """Training rows from calibration runs: model inputs and thermal-error targets as block means.
 
 Inputs come from the very code the daemon runs (temperature hold, eq. 16 estimator) in its batch form;
-targets are block means of the rate (100 s by default, as in the paper) minus a reference. Blocks start after
+targets are block means of the rate (200 s by default, fogd.core.columns.FIT_BLOCK_S; the paper's 100 s
+blocks remain those of every held-out table) minus a reference. Blocks start after
 each run's warm-up and never straddle two runs. One deliberate exception: a coarse sensor's dequantised
 temperature may be fitted from its offline estimate (`smoothed`, fogd.core.dequantise.smoothed_batch), which
 the daemon cannot compute; the causal estimate's pace-dependent lag would otherwise be learnt as physics.

@@ -24,7 +24,7 @@ from fogd.calibration.replay import (
 )
 from fogd.calibration.tables import epsilon_key, error_table, unit_named
 from fogd.core.atomic import replaced
-from fogd.core.columns import TRUE_ERROR_COLUMN
+from fogd.core.columns import BLOCK_S, TRUE_ERROR_COLUMN
 from fogd.core.errorstats import ErrorStats, centred_within_runs
 from fogd.core.inputs import TEMP, TEMP_LAG, TEMP_PLAY, TEMP_RATE, InputSpec, describe_inputs
 from fogd.core.runio import Run
@@ -51,12 +51,14 @@ def write_report(
     allan: bool = False,
     settle_s: float = SETTLE_S,
     unit: str = "deg/h",
+    holdout_block_s: float = BLOCK_S,
 ) -> str:
     """Write the figures and `report.md` into `directory` (created if missing); returns the summary's path.
 
     `selection`: the `--method auto` table (markdown lines); `allan`: add the Allan deviation of each held-out
     run before and after compensation by the chosen model (table and log-log figure); `settle_s`: the thermal
-    settling table 4 skips at the start of each held-out run (`fogd.calibration.replay.block_grid`); `unit`: the
+    settling table 4 skips at the start of each held-out run (`fogd.calibration.replay.block_grid`) and
+    `holdout_block_s` its blocks (`block_s`: the fit's, for table 3); `unit`: the
     channel's (g for an accelerometer), in which every figure, table and number of the report is given."""
     import matplotlib
 
@@ -99,7 +101,7 @@ def write_report(
         name = _save(_convergence_figure(histories, colours, unit), out, "pso_convergence.png")
         lines += ["## PSO convergence", "", f"![PSO convergence]({name})", ""]
     for index, run in enumerate(holdouts, start=1):
-        lines += _holdout_section(index, run, trained, colours, block_s, settle_s, out, unit)
+        lines += _holdout_section(index, run, trained, colours, holdout_block_s, settle_s, out, unit)
         if allan:
             lines += _allan_section(index, run, chosen, trained[chosen], out, unit)
     path = out / SUMMARY

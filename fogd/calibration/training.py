@@ -16,7 +16,7 @@ import numpy as np
 from fogd.calibration.features import TrainingSet, training_set
 from fogd.calibration.models import FitOptions, Fitted, fit
 from fogd.core import domain, modelfile, outside_range
-from fogd.core.columns import BLOCK_S, block_samples
+from fogd.core.columns import FIT_BLOCK_S, block_samples
 from fogd.core.dequantise import COARSE_RESOLUTION_C, detect_resolution_c
 from fogd.core.errorstats import ErrorStats, centred_within_runs
 from fogd.core.frozen import FrozenModel
@@ -53,7 +53,7 @@ class TrainConfig:
 
     method: str = "pso-svr"
     inputs: tuple[InputSpec, ...] = field(default_factory=lambda: parse_inputs(DEFAULT_INPUTS_TEXT))
-    block_s: float = BLOCK_S
+    block_s: float = FIT_BLOCK_S  # the fit targets' block (fogd.core.columns.FIT_BLOCK_S)
     reference: str | float = "mean"  # 'mean' of all training blocks, or a rate in deg/h
     fit: FitOptions = field(default_factory=FitOptions)
     name: str | None = None

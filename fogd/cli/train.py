@@ -32,7 +32,7 @@ from fogd.calibration.units import Unit, read_manifest
 from fogd.cli.common import ArgumentParser, DefaultsHelpFormatter, run
 from fogd.core import modelfile
 from fogd.core.atomic import check_output, check_output_directory
-from fogd.core.columns import BLOCK_S, CHANNELS, channel_unit
+from fogd.core.columns import BLOCK_S, CHANNELS, FIT_BLOCK_S, channel_unit
 from fogd.core.estimator import EstimatorSettings
 from fogd.core.inputs import (
     DEFAULT_INPUTS_TEXT,
@@ -171,7 +171,8 @@ def parser() -> ArgumentParser:
     p.add_argument("--window-s", type=positive_float, default=50.0, help="eq. 16 window N, in seconds, of --inputs paper")
     p.add_argument("--average-s", type=positive_float, default=0.5, help="eq. 16 averaging window m, in seconds")
     p.add_argument("--step-s", type=non_negative_float, default=0.0, help="eq. 16 step l, in seconds (0: every sample)")
-    p.add_argument("--block-s", type=positive_float, default=BLOCK_S, help="block length for targets, in seconds")
+    p.add_argument("--block-s", type=positive_float, default=FIT_BLOCK_S,
+                   help=f"block length of the fit's targets, in seconds (the held-out tables' blocks are {BLOCK_S:g} s)")
     p.add_argument(
         "--reference", default="mean",
         help="rate subtracted to get the error: 'mean' of the training blocks, or a value in deg/h",
