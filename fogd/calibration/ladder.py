@@ -14,8 +14,8 @@ other run trained on whole), every fold predicted by a model tuned and fitted wi
 (`--outside-range`, the trend by default; `selection.served`).
 
 The score is what a user sees on a run (and tools/accuracy_table.py measures): the drift, the RMSE of block
-means about the run's own mean (the fit's blocks, 200 s by default: fogd.core.columns.FIT_BLOCK_S). A held-out stretch is judged the same way, as a run of its own, about its
-own mean (`held_out_stretches`): its level against the other stretches is a constant that no model can know
+means about the run's own mean (the fit's blocks, 200 s by default: fogd.core.columns.FIT_BLOCK_S). A held-out
+stretch is judged the same way, as a run of its own, about its own mean (`held_out_stretches`): its level against the other stretches is a constant that no model can know
 and a bias calibration removes. Scored about their runs' means instead, the quick start's stretches (README:
 heating and cooling runs, 10 Hz, seed 1) gave 0.012 deg/h pooled where each fold's own drift was 0.001-0.004:
 offsets between stretches, the same for every rung, that hid the rungs' differences.
